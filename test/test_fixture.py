@@ -144,9 +144,10 @@ def test_static_specific_force_is_gravity_in_body_and_rate_is_earth_rate() -> No
     np.testing.assert_allclose(np.linalg.norm(k.omega_ib_imu_rad_s, axis=1), EARTH_RATE_RAD_S,
                                rtol=1e-14)
     assert np.all(k.omega_dot_ib_imu_rad_s2 == 0) and np.all(k.v_enu_m_s == 0)
-    # level at zero angles: accelerometers read +g up (CONTRACT 1)
-    k0 = fx.kinematics(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)))
-    np.testing.assert_allclose(k0.f_imu_m_s2[0], [0, 0, g], atol=1e-15)
+    # IMU level and aligned with ENU: accelerometers read +g up (CONTRACT 1)
+    level = Fixture.from_dict(_good())
+    k0 = level.kinematics(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)))
+    np.testing.assert_allclose(k0.f_imu_m_s2[0], [0, 0, level.site.gravity], atol=1e-15)
 
 
 def test_lever_arm_spin_about_vertical_axis() -> None:
@@ -192,16 +193,29 @@ def test_savage_fixture_geometry_table_1() -> None:
 
 
 def test_three_axis_fixture() -> None:
+    """Vertical outer axis, horizontal middle axis, inner axis perpendicular to the middle
+    one; the IMU mounted square (axes along joint axes) so each IMU axis can be stood up
+    and down with quarter turns, and the inner axis stays along one IMU axis."""
     fx = load_fixture('three_axis')
     assert fx.joint_names == ('outer', 'middle', 'inner')
-    np.testing.assert_allclose(fx.R_enu_imu(np.zeros(3)), np.eye(3), atol=1e-15)
-    np.testing.assert_allclose(fx.joint_axes_enu(np.zeros(3))[0], U)
-    # middle +90 about east stands IMU y... up: y -> z
-    R = fx.R_enu_imu(np.radians([0, 90, 0]))
-    np.testing.assert_allclose(R @ [0, 1, 0], U, atol=1e-15)
-    # inner +/-90 about north stands IMU x up
-    R = fx.R_enu_imu(np.radians([0, 0, -90]))
-    np.testing.assert_allclose(R @ [1, 0, 0], U, atol=1e-15)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-4, 4, size=(20, 3))
+    ax = fx.joint_axes_enu(q)
+    np.testing.assert_allclose(ax[:, 0], np.tile(U, (20, 1)), atol=1e-15)  # outer vertical
+    np.testing.assert_allclose(ax[:, 1] @ U, 0.0, atol=1e-15)  # middle horizontal
+    np.testing.assert_allclose(np.einsum('ni,ni->n', ax[:, 1], ax[:, 2]), 0.0, atol=1e-15)
+    # R_rpy is a signed permutation: IMU axes along the joint frame's axes
+    Rm = fx.R_joint_imu
+    np.testing.assert_allclose(np.sort(np.abs(Rm), axis=None)[-3:], 1.0, atol=1e-15)
+    inner_imu = fx.joint_axes_imu(q)[:, 2]
+    np.testing.assert_allclose(inner_imu, np.tile(inner_imu[0], (20, 1)), atol=1e-15)
+    assert np.max(np.abs(inner_imu[0])) == pytest.approx(1.0, abs=1e-15)
+    # every IMU axis can point up and down with middle/inner at multiples of 90 deg
+    grid = np.radians([[0, m, i] for m in (-90, 0, 90, 180) for i in (-90, 0, 90, 180)])
+    R = fx.R_enu_imu(grid)
+    for axis in range(3):
+        for sign in (1, -1):
+            assert np.any(np.abs(R[:, 2, axis] - sign) < 1e-15), (axis, sign)
     for name in ('savage_2axis', 'three_axis'):
         f = load_fixture(name)
         assert f.site.latitude_deg == 55.7 and f.site.height_m == 200.0

@@ -1,0 +1,122 @@
+"""``imu-calib replay``: calibrate from a recorded bag and write the calibration file.
+
+    imu-calib replay BAG --fixture F --output CALIB.yaml [--imu-topic T] [--joint-topic T]
+                     [--imu GRADE] [--config EST.yaml] [--iterations N] [--method ekf]
+
+CONTRACT 5: exit 0 on success; on unusable input one clear line, non-zero exit, and no
+(partial) output file. ``--method srt|oscillation`` dispatches to
+``imu_calib_ros.core.methods.<name>.calibrate`` when that module exists.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, InputError
+
+UNITS = (  # CONTRACT 4 key, factor to the engineering unit, unit
+    ('gyroscope.bias', 180 / np.pi * 3600, 'deg/h'),
+    ('gyroscope.scale_misalignment', 1e6, 'ppm|urad'),
+    ('gyroscope.scale_asymmetry', 1e6, 'ppm'),
+    ('gyroscope.g_sensitivity', 180 / np.pi * 3600 * 9.80665, 'deg/h/g'),
+    ('accelerometer.bias', 1e6 / 9.80665, 'ug'),
+    ('accelerometer.scale_misalignment', 1e6, 'ppm|urad'),
+    ('accelerometer.scale_asymmetry', 1e6, 'ppm'),
+    ('accelerometer.quadratic', 1e6 * 9.80665, 'ppm/g'),
+    ('accelerometer.size_effect', 1e3, 'mm'),
+)
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``replay`` sub-command."""
+    p = subparsers.add_parser('replay', help='calibrate from a recorded bag (CONTRACT 5)',
+                              description=__doc__.split('\n\n')[0] if __doc__ else None)
+    p.add_argument('bag', metavar='BAG', help='bag directory or .mcap file')
+    p.add_argument('--fixture', required=True, metavar='F', help='fixture name or YAML path')
+    p.add_argument('--output', '-o', required=True, metavar='CALIB.yaml',
+                   help='calibration file to write (CONTRACT 4)')
+    p.add_argument('--imu-topic', default='/imu/data_raw', metavar='T')
+    p.add_argument('--joint-topic', default='/joint_states', metavar='T')
+    p.add_argument('--imu', default='nav_grade', metavar='GRADE',
+                   help='IMU grade name or path: prior and noise (default nav_grade)')
+    p.add_argument('--config', default=None, metavar='EST.yaml',
+                   help='estimator config (default: config/estimator.yaml defaults)')
+    p.add_argument('--iterations', type=int, default=2, metavar='N',
+                   help='passes over the bag (Savage sect. 8), >= 1 (default 2)')
+    p.add_argument('--method', default='ekf', metavar='NAME',
+                   help='ekf (default), or a module of imu_calib_ros.core.methods (srt, '
+                        'oscillation)')
+    p.add_argument('--quiet', action='store_true', help='no progress bar or summary')
+    p.set_defaults(func=run)
+
+
+def _summary(calib: Any) -> str:
+    d = calib.to_dict()['imu_calibration']
+    lines = [f'{"parameter":34s} {"value":>30s}   {"sigma":>30s}  unit']
+    for key, k, unit in UNITS:
+        sect, name = key.split('.')
+        v = np.asarray(d[sect][name], float) * k
+        s = np.asarray(d['sigma'][sect][name], float) * k
+        fx = ' (fixed)' if key in d.get('fixed', []) else ''
+        fmt = np.array2string(v.ravel(), precision=3, suppress_small=True, max_line_width=200)
+        sfmt = np.array2string(s.ravel(), precision=3, suppress_small=True,
+                               max_line_width=200)
+        lines.append(f'{key + fx:34s} {fmt:>30s} +- {sfmt:>30s}  {unit}')
+    return '\n'.join(lines)
+
+
+def run(args: Any) -> int:
+    """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
+    from ..core.fixture import load_fixture
+    from ..core.imu_grade import load_grade
+    from ..msg_adapters.bag import iter_bag, read_bag
+    out = Path(args.output)
+    if args.iterations < 1:
+        raise InputError(f'--iterations must be >= 1, got {args.iterations}')
+    if out.is_dir():
+        raise InputError(f'--output {out} is a directory; give a file name like calib.yaml')
+    if not out.parent.is_dir():
+        raise InputError(f'--output: directory {out.parent} does not exist')
+    fixture = load_fixture(args.fixture)
+    grade = load_grade(args.imu)
+    if not Path(args.bag).exists():
+        raise InputError(f'bag {args.bag} does not exist')
+    if args.method != 'ekf':
+        try:
+            mod = importlib.import_module(f'imu_calib_ros.core.methods.{args.method}')
+        except ModuleNotFoundError:
+            raise InputError(f'--method {args.method}: no such method (ekf, srt, '
+                             'oscillation)') from None
+        if not hasattr(mod, 'calibrate'):
+            raise InputError(f'--method {args.method}: module has no calibrate()')
+        imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
+        calib = mod.calibrate(imu, joints, fixture, grade)
+    else:
+        from ..core.estimator import load_estimator_config
+        from ..core.estimator.replay import replay
+        config = load_estimator_config(args.config)
+        bar = None
+        if not args.quiet:
+            from tqdm import tqdm
+            bar = tqdm(unit=' samples', unit_scale=True, file=sys.stderr,
+                       desc=f'replay x{args.iterations}')
+        try:
+            est = replay(lambda: iter_bag(args.bag, args.imu_topic, args.joint_topic),
+                         fixture, grade, config, args.iterations,
+                         progress=bar.update if bar is not None else None)
+        finally:
+            if bar is not None:
+                bar.close()
+        calib = est.estimate()
+    try:
+        calib.save(out)
+    except ConfigError:
+        raise
+    if not args.quiet:
+        print(_summary(calib))
+        print(f'wrote {out}')
+    return 0

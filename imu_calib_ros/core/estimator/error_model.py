@@ -1,0 +1,276 @@
+"""Error-state layout and the sensor-error Jacobians of CONTRACT 3.
+
+The filter state (all "estimate minus truth") is, in this order::
+
+    psi (3)   attitude error in ENU: R_hat = exp([psi x]) R_true (strapdown.py)  [urad]
+    dv  (3)   velocity error in ENU: v_hat - v_true                         [um/s]
+    then the enabled groups of :data:`GROUPS` (sensor errors, lever arm, mounting)
+
+Each group is kept in an engineering unit (:data:`GROUPS`), so that the covariance spans a
+few orders of magnitude instead of ten (issue 3, item 4). ``scale`` converts a scaled state to
+SI: ``x_si = scale * x_scaled``.
+
+Sensor-error Jacobians ``M_g = d(gyro_meas)/d(theta_g)``, ``M_a = d(accel_meas)/d(theta_a)``
+are taken from the forward model of CONTRACT 3 (Kozlov & Kapralov eq. 1 for the size effect;
+Savage's MARS symmetric misalignment): with compensated rates ``omega_hat`` and the error
+``x = theta_hat - theta``, ``omega_hat - omega = -M_g x`` to first order.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..rotation import skew  # noqa: F401  (re-exported for the filter maths)
+
+FloatArray = NDArray[np.float64]
+
+DEG_H = np.pi / 180.0 / 3600.0  # rad/s per deg/h
+G0 = 9.80665  # m/s^2 per g (the unit "ug" of the summary; not the site's gravity)
+PPM = 1e-6
+URAD = 1e-6
+MM = 1e-3
+
+# (group, size, SI per engineering unit, unit label, side) - side g: gyro Jacobian columns,
+# a: accel Jacobian columns, '': measurement-only states.
+GROUPS: tuple[tuple[str, int, float, str, str], ...] = (
+    ('gyro_bias', 3, DEG_H, 'deg/h', 'g'),
+    ('gyro_scale', 3, PPM, 'ppm', 'g'),
+    ('gyro_asymmetry', 3, PPM, 'ppm', 'g'),
+    ('gyro_misalignment', 3, URAD, 'urad', 'g'),
+    ('gyro_g_sensitivity', 9, DEG_H / G0, 'deg/h/g', 'g'),
+    ('accel_bias', 3, 1e-6 * G0, 'ug', 'a'),
+    ('accel_scale', 3, PPM, 'ppm', 'a'),
+    ('accel_asymmetry', 3, PPM, 'ppm', 'a'),
+    ('accel_misalignment', 6, URAD, 'urad', 'a'),
+    ('accel_quadratic', 3, PPM / G0, 'ppm/g', 'a'),
+    ('size_effect', 6, MM, 'mm', 'a'),
+    ('time_offset', 1, 1e-6, 'us', 'a'),
+    ('lever_arm', 3, MM, 'mm', ''),
+    ('mounting', 3, URAD, 'urad', ''),
+)
+GROUP_INFO = {g[0]: g for g in GROUPS}
+GYRO_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'g')
+ACCEL_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'a')
+N_GYRO = sum(g[1] for g in GROUPS if g[4] == 'g')  # 21 columns of the full M_g
+N_ACCEL = sum(g[1] for g in GROUPS if g[4] == 'a')  # 26 columns of the full M_a
+
+# index pairs of the off-diagonal parameters (row i, column j); row-major order
+MIS_SYM = ((0, 1), (0, 2), (1, 2))  # Kg[i][j] == Kg[j][i]
+OFF6 = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))  # Ka and size effect r_i[j]
+
+
+def _offsets(groups: tuple[str, ...]) -> dict[str, slice]:
+    out, k = {}, 0
+    for name in groups:
+        n = GROUP_INFO[name][1]
+        out[name] = slice(k, k + n)
+        k += n
+    return out
+
+
+_GYRO_COLS = _offsets(GYRO_GROUPS)
+_ACCEL_COLS = _offsets(ACCEL_GROUPS)
+
+
+def gyro_jacobian(omega_rad_s: FloatArray, f_m_s2: FloatArray) -> FloatArray:
+    """``M_g = d(gyro_meas)/d(theta_g)`` of CONTRACT 3, shape ``(N, 3, 21)``, SI units.
+
+    Columns: bg (3), diag Kg (3), ag (3), symmetric Kg_ij for (01, 02, 12), G row-major (9).
+    """
+    w = np.atleast_2d(omega_rad_s)
+    f = np.atleast_2d(f_m_s2)
+    n = w.shape[0]
+    m = np.zeros((n, 3, N_GYRO))
+    i3 = np.arange(3)
+    m[:, i3, _GYRO_COLS['gyro_bias'].start + i3] = 1.0
+    m[:, i3, _GYRO_COLS['gyro_scale'].start + i3] = w
+    m[:, i3, _GYRO_COLS['gyro_asymmetry'].start + i3] = np.abs(w)
+    c0 = _GYRO_COLS['gyro_misalignment'].start
+    for k, (i, j) in enumerate(MIS_SYM):
+        m[:, i, c0 + k] = w[:, j]
+        m[:, j, c0 + k] = w[:, i]
+    c0 = _GYRO_COLS['gyro_g_sensitivity'].start
+    for i in range(3):
+        m[:, i, c0 + 3 * i:c0 + 3 * i + 3] = f
+    return m
+
+
+def accel_jacobian(omega_rad_s: FloatArray, omega_dot_rad_s2: FloatArray, f_m_s2: FloatArray,
+                   f_dot_m_s3: FloatArray | None = None) -> FloatArray:
+    """``M_a = d(accel_meas)/d(theta_a)`` of CONTRACT 3, shape ``(N, 3, 26)``, SI units.
+
+    Columns: ba (3), diag Ka (3), aa (3), Ka off-diagonal (01, 02, 10, 12, 20, 21), qa (3),
+    size effect r_i[j] in the same order (Kozlov & Kapralov eq. 1:
+    ``d/dr_i[j] (omega_dot x r_i + omega x (omega x r_i))_i = (e_i x omega_dot)_j +
+    omega_i omega_j`` for j != i), and the accel-minus-gyro time offset (column ``f_dot``:
+    accelerometers sampled ``tau`` late read ``f(t + tau) = f + f_dot tau``).
+    """
+    w = np.atleast_2d(omega_rad_s)
+    wd = np.atleast_2d(omega_dot_rad_s2)
+    f = np.atleast_2d(f_m_s2)
+    n = f.shape[0]
+    m = np.zeros((n, 3, N_ACCEL))
+    i3 = np.arange(3)
+    m[:, i3, _ACCEL_COLS['accel_bias'].start + i3] = 1.0
+    m[:, i3, _ACCEL_COLS['accel_scale'].start + i3] = f
+    m[:, i3, _ACCEL_COLS['accel_asymmetry'].start + i3] = np.abs(f)
+    m[:, i3, _ACCEL_COLS['accel_quadratic'].start + i3] = f * f
+    c_mis = _ACCEL_COLS['accel_misalignment'].start
+    c_r = _ACCEL_COLS['size_effect'].start
+    for k, (i, j) in enumerate(OFF6):
+        m[:, i, c_mis + k] = f[:, j]
+        # (e_i x wd)_j = eps_{j i l} wd_l = -eps_{i j l} wd_l, l the remaining axis
+        l_ax = 3 - i - j
+        sign = -1.0 if (i, j, l_ax) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else 1.0
+        m[:, i, c_r + k] = sign * wd[:, l_ax] + w[:, i] * w[:, j]
+    if f_dot_m_s3 is not None:
+        m[:, :, _ACCEL_COLS['time_offset'].start] = np.atleast_2d(f_dot_m_s3)
+    return m
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Index map of the filter state for a tuple of enabled groups.
+
+    Attributes
+    ----------
+    groups:
+        Enabled groups in state order (a subset of :data:`GROUPS`, that order).
+    slices:
+        Group name -> slice into the state vector (``'psi'`` and ``'dv'`` included).
+    n:
+        State dimension.
+    scale:
+        SI value of one scaled unit, per state ``(n,)``.
+    gyro_cols, accel_cols:
+        For the gyro/accel parameter states: their state indices and the matching columns of
+        :func:`gyro_jacobian` / :func:`accel_jacobian`.
+    """
+
+    groups: tuple[str, ...]
+    slices: dict[str, slice]
+    n: int
+    scale: FloatArray
+    gyro_state_idx: NDArray[np.intp]
+    gyro_cols: NDArray[np.intp]
+    accel_state_idx: NDArray[np.intp]
+    accel_cols: NDArray[np.intp]
+
+    @classmethod
+    def build(cls, groups: tuple[str, ...]) -> 'StateLayout':
+        """Layout for ``groups`` (order normalised to :data:`GROUPS`)."""
+        unknown = set(groups) - set(GROUP_INFO)
+        if unknown:
+            raise ValueError(f'unknown state groups {sorted(unknown)}')
+        ordered = tuple(g[0] for g in GROUPS if g[0] in groups)
+        slices = {'psi': slice(0, 3), 'dv': slice(3, 6)}
+        scale = [np.full(3, URAD), np.full(3, 1e-6)]
+        k = 6
+        gi, gc, ai, ac = [], [], [], []
+        for name in ordered:
+            _, size, unit, _, side = GROUP_INFO[name]
+            slices[name] = slice(k, k + size)
+            scale.append(np.full(size, unit))
+            if side == 'g':
+                gi.extend(range(k, k + size))
+                gc.extend(range(_GYRO_COLS[name].start, _GYRO_COLS[name].stop))
+            elif side == 'a':
+                ai.extend(range(k, k + size))
+                ac.extend(range(_ACCEL_COLS[name].start, _ACCEL_COLS[name].stop))
+            k += size
+        return cls(ordered, slices, k, np.concatenate(scale), np.array(gi, np.intp),
+                   np.array(gc, np.intp), np.array(ai, np.intp), np.array(ac, np.intp))
+
+    def labels(self) -> list[str]:
+        """One readable label per state, e.g. ``'gyro_scale[1]'``."""
+        out = ['psi[0]', 'psi[1]', 'psi[2]', 'dv[0]', 'dv[1]', 'dv[2]']
+        for name in self.groups:
+            out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
+        return out
+
+
+# --- SensorErrors <-> flat parameter vectors ---------------------------------------------
+
+def theta_from_errors(errors: object) -> tuple[FloatArray, FloatArray]:
+    """The full gyro (21,) and accel (26,) parameter vectors of a ``SensorErrors``.
+
+    The time offset (last accel entry) is not part of ``SensorErrors`` and is returned as 0.
+    """
+    kg = np.asarray(errors.gyro_scale_misalignment, float)  # type: ignore[attr-defined]
+    ka = np.asarray(errors.accel_scale_misalignment, float)  # type: ignore[attr-defined]
+    r = np.asarray(errors.size_effect_m, float)  # type: ignore[attr-defined]
+    tg = np.concatenate([
+        np.asarray(errors.gyro_bias_rad_s, float), np.diag(kg),  # type: ignore[attr-defined]
+        np.asarray(errors.gyro_scale_asymmetry, float),  # type: ignore[attr-defined]
+        [0.5 * (kg[i, j] + kg[j, i]) for i, j in MIS_SYM],
+        np.asarray(errors.gyro_g_sensitivity_rad_s_per_m_s2, float).ravel()])  # type: ignore
+    ta = np.concatenate([
+        np.asarray(errors.accel_bias_m_s2, float), np.diag(ka),  # type: ignore[attr-defined]
+        np.asarray(errors.accel_scale_asymmetry, float),  # type: ignore[attr-defined]
+        [ka[i, j] for i, j in OFF6],
+        np.asarray(errors.accel_quadratic_per_m_s2, float),  # type: ignore[attr-defined]
+        [r[i, j] for i, j in OFF6], [0.0]])
+    return tg, ta
+
+
+def errors_from_theta(theta_g: FloatArray, theta_a: FloatArray, cls: type) -> object:
+    """Build ``cls`` (``SensorErrors``) from the full parameter vectors (inverse of above)."""
+    c = _GYRO_COLS
+    kg = np.diag(theta_g[c['gyro_scale']])
+    for k, (i, j) in enumerate(MIS_SYM):
+        kg[i, j] = kg[j, i] = theta_g[c['gyro_misalignment'].start + k]
+    d = _ACCEL_COLS
+    ka = np.diag(theta_a[d['accel_scale']])
+    r = np.zeros((3, 3))
+    for k, (i, j) in enumerate(OFF6):
+        ka[i, j] = theta_a[d['accel_misalignment'].start + k]
+        r[i, j] = theta_a[d['size_effect'].start + k]
+    return cls(
+        gyro_bias_rad_s=np.array(theta_g[c['gyro_bias']]),
+        gyro_scale_misalignment=kg,
+        gyro_scale_asymmetry=np.array(theta_g[c['gyro_asymmetry']]),
+        gyro_g_sensitivity_rad_s_per_m_s2=theta_g[c['gyro_g_sensitivity']].reshape(3, 3).copy(),
+        accel_bias_m_s2=np.array(theta_a[d['accel_bias']]),
+        accel_scale_misalignment=ka,
+        accel_scale_asymmetry=np.array(theta_a[d['accel_asymmetry']]),
+        accel_quadratic_per_m_s2=np.array(theta_a[d['accel_quadratic']]),
+        size_effect_m=r)
+
+
+def gyro_cols(name: str) -> slice:
+    """Columns of group ``name`` in the full gyro parameter vector."""
+    return _GYRO_COLS[name]
+
+
+def accel_cols(name: str) -> slice:
+    """Columns of group ``name`` in the full accel parameter vector."""
+    return _ACCEL_COLS[name]
+
+
+def compensated_jacobians(errors: object, omega_hat: FloatArray, omega_dot: FloatArray,
+                          f_hat: FloatArray, f_dot: FloatArray | None = None) -> tuple[
+                              FloatArray, FloatArray]:
+    """Jacobians of the *compensated* samples: ``omega_hat - omega = -Jg x_g``,
+    ``f_hat - f = -Ja x_a`` (``x`` = estimate minus truth), to first order.
+
+    Differentiating ``measure(theta, omega) = meas`` at fixed ``meas`` gives
+    ``(I + Kg + diag(ag sign omega)) d omega = -M_g d theta_g`` (and likewise for the
+    accelerometers with ``diag(aa sign f + 2 qa f)``), so ``Jg = D_g^-1 M_g``. With MEMS scale
+    errors of 0.3 % this matters at the 0.3 % level of every Jacobian column. Neglected cross
+    terms: ``G (f_hat - f)`` in the gyros (G ~ 1e-6 (rad/s)/(m/s^2)) and the change of the
+    centripetal size-effect term with ``omega_hat - omega`` (~2 r omega |d omega|, 40 ng for a
+    navigation-grade IMU with r = 10 mm at 1 rad/s and 20 ppm scale error).
+    """
+    Mg = gyro_jacobian(omega_hat, f_hat)
+    Ma = accel_jacobian(omega_hat, omega_dot, f_hat, f_dot)
+    kg = np.asarray(errors.gyro_scale_misalignment)  # type: ignore[attr-defined]
+    ka = np.asarray(errors.accel_scale_misalignment)  # type: ignore[attr-defined]
+    ag = np.asarray(errors.gyro_scale_asymmetry)  # type: ignore[attr-defined]
+    aa = np.asarray(errors.accel_scale_asymmetry)  # type: ignore[attr-defined]
+    qa = np.asarray(errors.accel_quadratic_per_m_s2)  # type: ignore[attr-defined]
+    Dg = np.eye(3) + kg + np.einsum('ni,ij->nij', ag * np.sign(omega_hat), np.eye(3))
+    Da = np.eye(3) + ka + np.einsum('ni,ij->nij', aa * np.sign(f_hat) + 2 * qa * f_hat,
+                                    np.eye(3))
+    return np.linalg.solve(Dg, Mg), np.linalg.solve(Da, Ma)

@@ -1,0 +1,633 @@
+"""Streaming calibration estimator: strapdown navigator + augmented-state error EKF (issue 3).
+
+One implementation serves the live node (single samples) and offline replay (batches):
+samples are buffered and processed in *chunks* of ``n = imu_rate / update_rate`` samples
+between two measurement updates, and chunks in *blocks* of ``config.block_chunks``:
+
+1. compensate the block's raw samples with the current estimate (``sensor_model.compensate``;
+   the size effect with ``omega_dot`` from central differences of neighbouring mean rates,
+   METHODS.md "cuts across", so one sample of look-ahead is kept);
+2. ``Strapdown.propagate`` over the whole block (vectorised);
+3. build every chunk's transition matrix by vectorised sums (:mod:`.ekf`);
+4. per chunk: one filterpy ``predict`` and one gated Joseph-form ``update`` with the
+   lever-arm zero-velocity measurement ``v_enu = R_enu_imu (omega_eb_imu x rho)`` (and, with
+   encoder aiding, the attitude from the fixture kinematics with the mounting rotation);
+5. feed the error state back at the block end (navigator correction, new compensation).
+
+Inside a block the error state is carried (not fed back), which is exact for a linear model
+and keeps the errors small enough for the linearisation (a block is 1 s by default).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
+from ..rotation import skew
+from ..strapdown import Strapdown
+from ..types import ImuBatch, ImuSample, JointBatch, JointSample
+from . import error_model as em
+from .config import EstimatorConfig
+from .ekf import ErrorStateFilter, chunk_transitions, process_noise, scale_matrices
+
+FloatArray = NDArray[np.float64]
+MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the filter
+
+# CONTRACT 4 keys and the state groups that make them up
+CONTRACT_KEYS: dict[str, tuple[str, ...]] = {
+    'gyroscope.bias': ('gyro_bias',),
+    'gyroscope.scale_misalignment': ('gyro_scale', 'gyro_misalignment'),
+    'gyroscope.scale_asymmetry': ('gyro_asymmetry',),
+    'gyroscope.g_sensitivity': ('gyro_g_sensitivity',),
+    'accelerometer.bias': ('accel_bias',),
+    'accelerometer.scale_misalignment': ('accel_scale', 'accel_misalignment'),
+    'accelerometer.scale_asymmetry': ('accel_asymmetry',),
+    'accelerometer.quadratic': ('accel_quadratic',),
+    'accelerometer.size_effect': ('size_effect',),
+}
+
+
+def _sensor_model() -> Any:
+    from .. import sensor_model  # imported late: written in parallel (DESIGN.md)
+    return sensor_model
+
+
+def prior_sigmas(grade: Any, config: EstimatorConfig) -> dict[str, FloatArray]:
+    """One-sigma prior of every group in SI (grade sigmas x ``prior_sigma_scale``)."""
+    s = grade.sigma
+    k = config.prior_sigma_scale
+    out = {
+        'gyro_bias': s.gyro_bias_rad_s, 'gyro_scale': s.gyro_scale,
+        'gyro_asymmetry': s.gyro_asymmetry, 'gyro_misalignment': s.gyro_misalignment_rad,
+        'gyro_g_sensitivity': s.gyro_g_sensitivity, 'accel_bias': s.accel_bias_m_s2,
+        'accel_scale': s.accel_scale, 'accel_asymmetry': s.accel_asymmetry,
+        'accel_misalignment': s.accel_misalignment_rad, 'accel_quadratic': s.accel_quadratic,
+        'size_effect': s.size_effect_m,
+    }
+    res = {name: np.full(em.GROUP_INFO[name][1], k * float(v)) for name, v in out.items()}
+    # the filter estimates the total bias = turn-on constant + Gauss-Markov part (steady state)
+    res['gyro_bias'] = np.hypot(res['gyro_bias'], grade.gyro_bias_instability_rad_s)
+    res['accel_bias'] = np.hypot(res['accel_bias'], grade.accel_bias_instability_m_s2)
+    res['time_offset'] = np.full(1, config.time_offset_sigma_s)
+    res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
+    res['mounting'] = np.full(3, config.mounting_sigma_rad)
+    return res
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Full estimate in SI: sensor parameters, auxiliary states and their covariance."""
+
+    theta_gyro: FloatArray  # (21,) full gyro parameter vector (error_model order)
+    theta_accel: FloatArray  # (26,) full accel parameter vector
+    lever_arm_imu_m: FloatArray  # (3,) reference point offset from the axes, IMU frame
+    mounting_rotvec_rad: FloatArray  # (3,) mounting rotation estimate, IMU frame
+    labels: tuple[str, ...]  # labels of the calibration states (no psi, dv)
+    values: FloatArray  # (m,) SI values of those states
+    covariance: FloatArray  # (m, m) SI covariance of those states
+
+
+class CalibrationEstimator:
+    """Streaming augmented-state error EKF (see the module docstring).
+
+    Parameters
+    ----------
+    fixture:
+        The nominal fixture (kinematics for alignment, lever arm prior, encoder aiding).
+    grade:
+        :class:`~imu_calib_ros.core.imu_grade.ImuGrade`: prior sigmas and noise densities.
+    config:
+        :class:`EstimatorConfig`.
+    initial:
+        Optional starting :class:`Estimate` (a previous pass, Savage sect. 8): the
+        compensation starts there; the prior covariance is the grade's again.
+    """
+
+    def __init__(self, fixture: Any, grade: Any, config: EstimatorConfig | None = None,
+                 initial: Estimate | None = None) -> None:
+        self.fixture = fixture
+        self.grade = grade
+        self.config = config or EstimatorConfig()
+        self._initial = initial
+        self._prior = prior_sigmas(grade, self.config)
+        groups = self.config.estimated_groups
+        self.dropped_groups = tuple(g for g in groups if not np.all(self._prior[g] > 0.0))
+        self.layout = em.StateLayout.build(
+            tuple(g for g in groups if g not in self.dropped_groups))
+        self._joint_names = tuple(fixture.joint_names)
+        self.reset()
+
+    # ------------------------------------------------------------------ public API
+    def reset(self) -> None:
+        """Forget all data; back to waiting for a stationary window."""
+        init = self._initial
+        if init is None:
+            self._theta_g = np.zeros(em.N_GYRO)
+            self._theta_a = np.zeros(em.N_ACCEL)
+            q0 = np.zeros(self.fixture.n_joints)
+            self._rho = self.fixture.R_enu_imu(q0).T @ self.fixture.p_enu_m(q0)
+            self._mount = np.zeros(3)
+        else:
+            self._theta_g = init.theta_gyro.copy()
+            self._theta_a = init.theta_accel.copy()
+            self._rho = init.lever_arm_imu_m.copy()
+            self._mount = init.mounting_rotvec_rad.copy()
+        self._errors = self._make_errors()
+        self._running = False
+        self._nav: Strapdown | None = None
+        self._filter: ErrorStateFilter | None = None
+        self._imu_t: list[NDArray[np.int64]] = []
+        self._imu_w: list[FloatArray] = []
+        self._imu_f: list[FloatArray] = []
+        self._jt: list[int] = []
+        self._jq: list[FloatArray] = []
+        self._last_joint_q: FloatArray | None = None
+        self._prev: tuple[int, FloatArray, FloatArray] | None = None
+        self._last_imu_stamp: int | None = None
+        self._nominal_dt = 0.0
+        self._n = 1
+        self._noise = (self.grade.gyro_noise_rad_s_rt_hz, self.grade.accel_noise_m_s2_rt_hz)
+        self._q1_s: FloatArray | None = None
+        self.counters: dict[str, int] = {
+            'imu_samples': 0, 'joint_samples': 0, 'imu_processed': 0, 'chunks': 0,
+            'imu_dropped_before_alignment': 0, 'imu_out_of_order': 0, 'imu_non_finite': 0,
+            'joint_out_of_order': 0, 'joint_missing_names': 0, 'joint_non_finite': 0, 'gaps': 0,
+            'attitude_updates_without_joints': 0}
+        self._t0_ns: int | None = None
+        self._t_last_ns: int | None = None
+
+    def push_imu(self, sample: ImuSample) -> None:
+        """Add one IMU sample (live node); processing happens when a chunk is complete."""
+        self._append_imu(np.array([sample.stamp_ns], np.int64),
+                         np.asarray(sample.gyro_rad_s, float).reshape(1, 3),
+                         np.asarray(sample.accel_m_s2, float).reshape(1, 3))
+        self._process()
+
+    def push_imu_batch(self, batch: ImuBatch) -> None:
+        """Add many IMU samples (same code path as :meth:`push_imu`, vectorised)."""
+        if len(batch):
+            self._append_imu(np.asarray(batch.stamps_ns, np.int64),
+                             np.asarray(batch.gyro_rad_s, float),
+                             np.asarray(batch.accel_m_s2, float))
+            self._process()
+
+    def push_joint(self, sample: JointSample) -> None:
+        """Add one joint-state sample (names in any order; other joints ignored)."""
+        self._append_joint(sample.stamp_ns, sample.names, np.asarray(sample.positions_rad))
+
+    def push_joint_batch(self, batch: JointBatch) -> None:
+        """Add many joint-state samples."""
+        idx = self._name_index(batch.names)
+        if idx is None:
+            self.counters['joint_missing_names'] += len(batch)
+            return
+        q = np.asarray(batch.positions_rad, float)[:, idx]
+        for t, qi in zip(np.asarray(batch.stamps_ns, np.int64), q):
+            self._append_joint_q(int(t), qi)
+
+    def flush(self) -> None:
+        """Process every complete chunk (end of a bag), ignoring the joint look-ahead."""
+        self._process(final=True)
+
+    def filter_accepted(self, kind: str) -> int:
+        """Accepted updates of one kind (``'velocity'`` or ``'attitude'``)."""
+        return 0 if self._filter is None else self._filter.counters.accepted.get(kind, 0)
+
+    @property
+    def is_running(self) -> bool:
+        """True once the coarse alignment is done and the filter runs."""
+        return self._running
+
+    def estimate_state(self) -> Estimate:
+        """The current estimate (SI) with the covariance of the calibration states."""
+        lay = self.layout
+        idx = np.arange(6, lay.n)
+        if self._filter is None:
+            P = np.diag(np.concatenate([self._prior[g] for g in lay.groups]) ** 2) \
+                if lay.groups else np.zeros((0, 0))
+        else:
+            s = lay.scale[idx]
+            P = self._filter.P[np.ix_(idx, idx)] * np.outer(s, s)
+        values = self._state_values()
+        return Estimate(self._theta_g.copy(), self._theta_a.copy(), self._rho.copy(),
+                        self._mount.copy(), tuple(lay.labels()[6:]), values, P)
+
+    def estimate(self, frame_id: str = 'imu_link') -> Any:
+        """The calibration as a :class:`~imu_calib_ros.core.calibration.CalibrationResult`.
+
+        Estimated groups carry their filter sigma; the others their assumed value (zero) and
+        prior sigma, and are listed as fixed (CONTRACT 4).
+        """
+        from ..calibration import CalibrationResult  # written in parallel (DESIGN.md)
+        sm = _sensor_model()
+        est = self.estimate_state()
+        sig_g = np.zeros(em.N_GYRO)
+        sig_a = np.zeros(em.N_ACCEL)
+        for g in em.GYRO_GROUPS:
+            sig_g[em.gyro_cols(g)] = self._prior[g]
+        for g in em.ACCEL_GROUPS:
+            sig_a[em.accel_cols(g)] = self._prior[g]
+        sd = np.sqrt(np.clip(np.diag(est.covariance), 0.0, None))
+        lay = self.layout
+        for g in lay.groups:
+            sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
+            if g in em.GYRO_GROUPS:
+                sig_g[em.gyro_cols(g)] = sd[sl]
+            elif g in em.ACCEL_GROUPS:
+                sig_a[em.accel_cols(g)] = sd[sl]
+        errors = em.errors_from_theta(self._theta_g, self._theta_a, sm.SensorErrors)
+        sigma = em.errors_from_theta(sig_g, sig_a, sm.SensorErrors)
+        fixed = tuple(k for k, gs in CONTRACT_KEYS.items()
+                      if not any(g in lay.groups for g in gs))
+        extra = {'estimator': self._extra(est, sd)}
+        return CalibrationResult(errors=errors, sigma=sigma, frame_id=frame_id, fixed=fixed,
+                                 extra=extra)
+
+    def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
+        """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
+        the current estimate (frozen at the time of the call)."""
+        sm = _sensor_model()
+        errors = self._errors
+
+        def compensate(gyro: FloatArray, accel: FloatArray,
+                       omega_dot: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+            return sm.compensate(errors, np.atleast_2d(gyro), np.atleast_2d(accel), omega_dot)
+        return compensate
+
+    def health(self) -> dict[str, Any]:
+        """Counters, gate statistics and covariance health (for diagnostics)."""
+        out: dict[str, Any] = dict(self.counters)
+        out['running'] = self._running
+        out['dropped_groups'] = list(self.dropped_groups)
+        if self._filter is not None:
+            c = self._filter.counters
+            out['accepted'] = dict(c.accepted)
+            out['rejected'] = dict(c.rejected)
+            out['mean_nis'] = {k: c.nis_sum[k] / max(c.accepted.get(k, 0), 1)
+                               for k in c.nis_sum}
+            P = self._filter.P
+            out['covariance_min_eigenvalue_scaled'] = float(np.linalg.eigvalsh(P).min())
+            out['covariance_asymmetry'] = float(np.abs(P - P.T).max())
+        if self._t0_ns is not None and self._t_last_ns is not None:
+            out['processed_s'] = (self._t_last_ns - self._t0_ns) * 1e-9
+        return out
+
+    # ------------------------------------------------------------------ input handling
+    def _name_index(self, names: tuple[str, ...]) -> NDArray[np.intp] | None:
+        try:
+            return np.array([list(names).index(n) for n in self._joint_names], np.intp)
+        except ValueError:
+            return None
+
+    def _append_joint(self, stamp_ns: int, names: tuple[str, ...], q: FloatArray) -> None:
+        idx = self._name_index(tuple(names))
+        if idx is None:
+            self.counters['joint_missing_names'] += 1
+            return
+        self._append_joint_q(int(stamp_ns), np.asarray(q, float)[idx])
+
+    def _append_joint_q(self, stamp_ns: int, q: FloatArray) -> None:
+        if not np.all(np.isfinite(q)):
+            self.counters['joint_non_finite'] += 1
+            return
+        if self._jt and stamp_ns <= self._jt[-1]:
+            self.counters['joint_out_of_order'] += 1
+            return
+        if self._last_joint_q is not None:  # unwrap against the previous sample
+            q = q + 2 * np.pi * np.round((self._last_joint_q - q) / (2 * np.pi))
+        self._last_joint_q = q
+        self._jt.append(stamp_ns)
+        self._jq.append(q)
+        self.counters['joint_samples'] += 1
+
+    def _append_imu(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray) -> None:
+        self.counters['imu_samples'] += len(t)
+        good = np.all(np.isfinite(w), axis=1) & np.all(np.isfinite(f), axis=1)
+        last = self._last_imu_stamp
+        # a sample not newer than every earlier one is dropped (bags are in receive order)
+        first = np.iinfo(np.int64).min if last is None else last
+        prev_max = np.maximum.accumulate(np.concatenate([[first], t]))[:-1]
+        mono = t > prev_max
+        self.counters['imu_non_finite'] += int((~good).sum())
+        self.counters['imu_out_of_order'] += int((good & ~mono).sum())
+        keep = good & mono
+        if not keep.any():
+            return
+        t, w, f = t[keep], w[keep], f[keep]
+        self._last_imu_stamp = int(t[-1])
+        self._imu_t.append(t)
+        self._imu_w.append(w)
+        self._imu_f.append(f)
+
+    def _take_imu(self) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+        if len(self._imu_t) > 1:
+            self._imu_t = [np.concatenate(self._imu_t)]
+            self._imu_w = [np.concatenate(self._imu_w)]
+            self._imu_f = [np.concatenate(self._imu_f)]
+        if not self._imu_t:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+        return self._imu_t[0], self._imu_w[0], self._imu_f[0]
+
+    def _keep_imu_from(self, k: int) -> None:
+        t, w, f = self._take_imu()
+        self._imu_t, self._imu_w, self._imu_f = [t[k:]], [w[k:]], [f[k:]]
+
+    # ------------------------------------------------------------------ alignment
+    def _try_initialise(self) -> bool:
+        """Coarse alignment on the first stationary window (levelling + fixture heading)."""
+        t, w, f = self._take_imu()
+        if len(t) < 3 or len(self._jt) < 2:
+            return False
+        cfg = self.config
+        jt = np.array(self._jt, np.int64)
+        jq = np.array(self._jq)
+        win_ns = int(cfg.init_window_s * 1e9)
+        moving = np.any(np.abs(np.diff(jq, axis=0)) > cfg.stationary_joint_tolerance_rad, axis=1)
+        # first joint sample from which the joints stay put for a whole window
+        mv = np.nonzero(moving)[0]  # motion between sample i and i + 1
+        starts = np.concatenate([[0], mv + 1])
+        stops = np.concatenate([mv, [len(jt) - 1]])  # last sample of each still run
+        ok = np.nonzero(jt[stops] - jt[starts] >= win_ns)[0]
+        if ok.size == 0:
+            # still waiting: keep only the current still run (bounded memory)
+            start_j = int(starts[-1])
+            t_start = jt[start_j]
+            k0 = int(np.searchsorted(t, t_start))
+            if k0 > 0:
+                self.counters['imu_dropped_before_alignment'] += k0
+                self._keep_imu_from(k0)
+            self._jt, self._jq = self._jt[start_j:], self._jq[start_j:]
+            return False
+        start_j = int(starts[ok[0]])
+        t_start = jt[start_j]
+        k0 = int(np.searchsorted(t, t_start))
+        if k0 > 0:
+            self.counters['imu_dropped_before_alignment'] += k0
+            self._keep_imu_from(k0)
+            t, w, f = self._take_imu()
+        if len(t) < 3 or t[-1] < t_start + win_ns:
+            return False
+        stop_j = int(stops[ok[0]])
+        k1 = int(np.searchsorted(t, t_start + win_ns, side='right'))
+        tw, ww, fw = t[:k1], w[:k1], f[:k1]
+        dts = np.diff(tw)
+        if len(dts) < 2:
+            return False
+        self._nominal_dt = float(np.median(dts)) * 1e-9
+        rate = 1.0 / self._nominal_dt
+        self._n = max(1, int(round(rate / cfg.update_rate_hz)))
+        j1 = min(stop_j + 1, int(np.searchsorted(jt, t_start + win_ns, side='right')))
+        q_mean = jq[start_j:j1].mean(axis=0)  # the window only: same for any push pattern
+        sm = _sensor_model()
+        w_c, f_c = sm.compensate(self._errors, ww, fw, np.zeros_like(ww))
+        f_mean = f_c.mean(axis=0)
+        R_fix = self.fixture.R_enu_imu(q_mean)
+        up = R_fix @ f_mean
+        up /= np.linalg.norm(up)
+        axis = np.cross(up, [0.0, 0.0, 1.0])
+        s = np.linalg.norm(axis)
+        ang = math.atan2(s, up[2])
+        R_lev = Rotation.from_rotvec(axis / s * ang).as_matrix() if s > 0 else np.eye(3)
+        R0 = R_lev @ R_fix
+        if cfg.noise_source == 'data':
+            self._noise = self._noise_from_data(w_c, f_c)
+        self._nav = Strapdown(self.fixture.site, R0)
+        self._start_filter()
+        self._running = True
+        self._t0_ns = int(t[0])
+        self._prev = None
+        return True
+
+    def _noise_from_data(self, w: FloatArray, f: FloatArray) -> tuple[float, float]:
+        """White-noise densities from the stationary window (Allan deviation at the shortest
+        tau, where white noise dominates: N = sigma_A(tau) sqrt(tau))."""
+        import allantools
+        rate = 1.0 / self._nominal_dt
+        out = []
+        for x in (w, f):
+            dens = []
+            for a in range(3):
+                taus, adev, _, _ = allantools.oadev(x[:, a], rate=rate, data_type='freq',
+                                                    taus=np.array([self._nominal_dt * 2]))
+                dens.append(adev[0] * math.sqrt(taus[0]))
+            out.append(float(np.sqrt(np.mean(np.square(dens)))))
+        return out[0], out[1]
+
+    def _start_filter(self) -> None:
+        cfg = self.config
+        lay = self.layout
+        p0 = np.zeros(lay.n)
+        p0[0:2] = cfg.initial_tilt_sigma_rad
+        p0[2] = cfg.initial_heading_sigma_rad
+        p0[3:6] = cfg.initial_velocity_sigma_m_s
+        for g in lay.groups:
+            p0[lay.slices[g]] = self._prior[g]
+        P0 = np.diag((p0 / lay.scale) ** 2)
+        self._filter = ErrorStateFilter(lay, P0, cfg.gate_probability)
+        gr = self.grade
+        qg = (2.0 * gr.gyro_bias_instability_rad_s ** 2 / gr.gyro_bias_correlation_s
+              + gr.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
+        qa = (2.0 * gr.accel_bias_instability_m_s2 ** 2 / gr.accel_bias_correlation_s
+              + gr.accel_bias_random_walk_m_s3_rt_hz ** 2)
+        k = cfg.noise_scale
+        q1 = process_noise(lay, 1.0, k * self._noise[0], k * self._noise[1], qg, qa)
+        self._q1_s = np.diag(np.diag(q1) / lay.scale ** 2)
+
+    # ------------------------------------------------------------------ processing
+    def _process(self, final: bool = False) -> None:
+        if not self._running:
+            if not self._try_initialise():
+                return
+        t, w, f = self._take_imu()
+        n = self._n
+        need = n + 1  # one sample of look-ahead for the central differences
+        if len(t) < need:
+            return
+        n_chunks = (len(t) - 1) // n
+        aiding = self.config.attitude_aiding
+        if aiding and not final and self._jt:
+            # wait for joint states beyond a chunk end (unless they stopped coming)
+            t_j = self._jt[-1]
+            wait_ns = int(self.config.max_pending_s * 1e9)
+            if t[-1] - t_j < wait_ns:
+                ends = t[n - 1:n * n_chunks:n]
+                n_chunks = int(np.searchsorted(ends, t_j, side='right'))
+        bc = self.config.block_chunks
+        if not final:  # whole blocks only: single pushes and batches give the same result
+            n_chunks = (n_chunks // bc) * bc
+        done = 0
+        while done < n_chunks:
+            b = min(bc, n_chunks - done)
+            k0 = done * n
+            k1 = k0 + b * n
+            self._run_block(t[k0:k1 + 1], w[k0:k1 + 1], f[k0:k1 + 1], b)
+            done += b
+        if done:
+            self._keep_imu_from(done * n)
+            self._trim_joints()
+
+    def _trim_joints(self) -> None:
+        if self._t_last_ns is None or len(self._jt) < 3:
+            return
+        k = int(np.searchsorted(np.array(self._jt), self._t_last_ns)) - 2
+        if k > 0:
+            del self._jt[:k]
+            del self._jq[:k]
+
+    def _run_block(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray, B: int) -> None:
+        """Process ``B`` chunks: ``t, w, f`` hold ``B n`` samples plus one look-ahead."""
+        assert self._nav is not None and self._filter is not None and self._q1_s is not None
+        n = self._n
+        m = B * n
+        nom = self._nominal_dt
+        sm = _sensor_model()
+        lay = self.layout
+        # intervals; a gap (> 1.5 nominal periods) is a sample of one nominal period
+        if self._prev is None:
+            t_prev, w_prev, f_prev = int(t[0]) - int(round(nom * 1e9)), w[0], f[0]
+        else:
+            t_prev, w_prev, f_prev = self._prev
+        tt = np.concatenate([[t_prev], t]).astype(np.int64)
+        dt_all = np.diff(tt) * 1e-9  # (m + 1,)
+        gap = dt_all > 1.5 * nom
+        n_gaps = int(gap[:m].sum())
+        dt_all = np.where(gap, nom, dt_all)
+        ww = np.vstack([w_prev, w])  # (m + 2, 3): previous, block, look-ahead
+        ff = np.vstack([f_prev, f])
+        # central differences of mean rates: omega_dot at the interval (Kozlov eq. 1 term)
+        den = (dt_all[:-1] + dt_all[1:])[:, None]
+        wd = (ww[2:] - ww[:-2]) / den  # (m, 3)
+        fd = (ff[2:] - ff[:-2]) / den
+        wd_all = np.vstack([wd, wd[-1:]])  # look-ahead: reuse
+        w_c, f_c = sm.compensate(self._errors, w, f, wd_all)
+        tau = self._theta_a[em.accel_cols('time_offset')][0]
+        if tau != 0.0:
+            f_c = f_c - tau * np.vstack([fd, fd[-1:]])
+        dt = dt_all[:m]
+        if n_gaps:
+            self.counters['gaps'] += n_gaps
+            self._nav.reset_memory()
+        R_start = self._nav.R_enu_imu
+        nav = self._nav.propagate(dt, w_c[:m], f_c[:m])
+        R_mid = 0.5 * (np.concatenate([R_start[None], nav.R_enu_imu[:-1]]) + nav.R_enu_imu)
+        # sensor Jacobians on the compensated samples
+        Mg, Ma = em.compensated_jacobians(self._errors, w_c[:m], wd, f_c[:m], fd)
+        om = self.fixture.site.omega_ie_enu
+        phi = chunk_transitions(lay, R_mid.reshape(B, n, 3, 3),
+                                nav.f_enu_m_s2.reshape(B, n, 3),
+                                Mg.reshape(B, n, 3, em.N_GYRO), Ma.reshape(B, n, 3, em.N_ACCEL),
+                                dt.reshape(B, n), om)
+        s = lay.scale
+        phi_s = phi * (s[None, None, :] / s[None, :, None])
+        T = dt.reshape(B, n).sum(axis=1)
+        # zero-velocity measurement with the lever arm, at each chunk end
+        ends = np.arange(n - 1, m, n)
+        R_end = nav.R_enu_imu[ends]
+        w_end = 0.5 * (w_c[ends] + w_c[ends + 1])  # rate at the chunk-end instant
+        w_eb = w_end - np.einsum('bji,j->bi', R_end, om)
+        u = np.cross(w_eb, self._rho)
+        Ru = np.einsum('bij,bj->bi', R_end, u)
+        z_v = (nav.v_enu_m_s[ends] - Ru) / MEAS_SCALE
+        H_v = np.zeros((B, 3, lay.n))
+        H_v[:, :, 3:6] = np.eye(3)
+        H_v[:, :, 0:3] = skew(Ru)
+        if 'lever_arm' in lay.slices:
+            H_v[:, :, lay.slices['lever_arm']] = -R_end @ skew(w_eb)
+        H_v *= s[None, None, :] / MEAS_SCALE
+        R_v = np.eye(3) * (self.config.velocity_sigma_m_s / MEAS_SCALE) ** 2
+        # attitude from the encoders (with the mounting rotation)
+        z_a = H_a = None
+        have_att = np.zeros(B, bool)
+        if self.config.attitude_aiding and self._jt:
+            jt = np.array(self._jt, np.int64)
+            te = t[ends]
+            have_att = (te >= jt[0]) & (te <= jt[-1])
+            self.counters['attitude_updates_without_joints'] += int((~have_att).sum())
+            if have_att.any():
+                jq = np.array(self._jq)
+                rel = (te - jt[0]).astype(float)
+                jrel = (jt - jt[0]).astype(float)
+                q_end = np.stack([np.interp(rel, jrel, jq[:, i]) for i in range(jq.shape[1])],
+                                 axis=1)
+                R_pred = self.fixture.R_enu_imu(q_end) @ Rotation.from_rotvec(
+                    self._mount).as_matrix()
+                z_a = Rotation.from_matrix(R_end @ np.swapaxes(R_pred, 1, 2)).as_rotvec()
+                z_a /= MEAS_SCALE
+                H_a = np.zeros((B, 3, lay.n))
+                H_a[:, :, 0:3] = np.eye(3)
+                if 'mounting' in lay.slices:
+                    H_a[:, :, lay.slices['mounting']] = -R_end
+                H_a *= s[None, None, :] / MEAS_SCALE
+        R_a = np.eye(3) * (self.config.attitude_sigma_rad / MEAS_SCALE) ** 2
+        filt = self._filter
+        for b in range(B):
+            filt.predict(phi_s[b], self._q1_s * T[b])
+            filt.update('velocity', z_v[b], H_v[b], R_v)
+            if have_att[b]:
+                filt.update('attitude', z_a[b], H_a[b], R_a)  # type: ignore[index]
+        if n_gaps:  # motion during a gap is lost: widen the navigation uncertainty
+            filt.P[0:3, 0:3] += np.eye(3) * (1e-3 / lay.scale[0]) ** 2 * n_gaps
+            filt.P[3:6, 3:6] += np.eye(3) * (1e-2 / lay.scale[3]) ** 2 * n_gaps
+        self._feedback()
+        self._prev = (int(t[m - 1]), w[m - 1], f[m - 1])
+        self._t_last_ns = int(t[m - 1])
+        self.counters['imu_processed'] += m
+        self.counters['chunks'] += B
+
+    def _feedback(self) -> None:
+        """Apply the error state to the navigator and the parameter estimates; zero it."""
+        assert self._filter is not None and self._nav is not None
+        lay = self.layout
+        x = self._filter.x * lay.scale
+        self._nav.correct(x[0:3], x[3:6])
+        self._theta_g[lay.gyro_cols] -= x[lay.gyro_state_idx]
+        self._theta_a[lay.accel_cols] -= x[lay.accel_state_idx]
+        if 'lever_arm' in lay.slices:
+            self._rho = self._rho - x[lay.slices['lever_arm']]
+        if 'mounting' in lay.slices:
+            self._mount = (Rotation.from_rotvec(self._mount)
+                           * Rotation.from_rotvec(-x[lay.slices['mounting']])).as_rotvec()
+        self._filter.x = np.zeros(lay.n)
+        self._errors = self._make_errors()
+
+    def _make_errors(self) -> Any:
+        return em.errors_from_theta(self._theta_g, self._theta_a, _sensor_model().SensorErrors)
+
+    def _state_values(self) -> FloatArray:
+        lay = self.layout
+        out = np.zeros(lay.n)
+        out[lay.gyro_state_idx] = self._theta_g[lay.gyro_cols]
+        out[lay.accel_state_idx] = self._theta_a[lay.accel_cols]
+        if 'lever_arm' in lay.slices:
+            out[lay.slices['lever_arm']] = self._rho
+        if 'mounting' in lay.slices:
+            out[lay.slices['mounting']] = self._mount
+        return out[6:]
+
+    def _extra(self, est: Estimate, sd: FloatArray) -> dict[str, Any]:
+        lay = self.layout
+        out: dict[str, Any] = {
+            'lever_arm_imu_m': [float(v) for v in self._rho],
+            'mounting_rotvec_rad': [float(v) for v in self._mount],
+            'time_offset_s': float(self._theta_a[em.accel_cols('time_offset')][0]),
+            'estimated_groups': list(lay.groups),
+        }
+        for g in ('lever_arm', 'mounting', 'time_offset'):
+            if g in lay.slices:
+                sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
+                out[f'{g}_sigma'] = [float(v) for v in sd[sl]]
+        h = self.health()
+        out['health'] = {k: v for k, v in h.items()
+                         if isinstance(v, (int, float, bool, str))}
+        return out
+
+
+def check_finite(x: FloatArray, what: str) -> None:
+    """Raise :class:`InputError` if ``x`` holds NaN or inf."""
+    if not np.all(np.isfinite(x)):
+        raise InputError(f'{what}: non-finite values')

@@ -1,0 +1,654 @@
+"""Savage's strapdown rotation test (SRT) as a processor.
+
+P. G. Savage, "Improved strapdown IMU calibration procedures", IEEE/ION PLANS 2018
+(seed ``003``). Pipeline:
+
+1. stationary windows from the joint states and the IMU (:mod:`.windows`); every pair of
+   consecutive windows with a rotation between them is a sequence;
+2. start-frame accelerations ``a^BStrt = C_B^BStrt a^B`` with the gyro-integrated DCM
+   including earth rate, eqs. (1)-(2): ``dC/dt = C (w x) - (w_e^BStrt x) C``, ``C(t0) = I``;
+   its closed form ``C = Rot(-w_e^BStrt t) * prod(exp(w dt))`` is what is computed;
+3. per sequence the horizontal change ``Delta a_H`` (two rows, in a horizontal basis of
+   BStrt) and per window the down component ``u_dwn . a + g`` (eq. 1);
+4. the linear model of eqs. (3)-(5) is not transcribed: each row's sensitivity to every
+   error parameter is obtained by finite differences through steps 2-3 themselves (the
+   error is added to the compensated stream), so any sequence set works and Table 2's
+   ``H_k`` (2 pi g, 4 g, 2 g) comes out of the code (see :func:`design_sensitivities`);
+5. weighted least squares with rank detection (QR with column pivoting): parameters the
+   sequence set does not excite are fixed (CONTRACT 4) and reported;
+6. iterate by re-playing the recording with the updated compensation (sect. 8).
+
+Frames: Savage's B is the IMU frame, so ``Delta a_H`` components are the same in his
+NED-based and our ENU-based formulation; only ``C_NED^BStrt`` of eq. (2) becomes
+``R_imu_enu(q)`` from the fixture kinematics (earth rate and down vector), and the down
+vector is ENU ``(0, 0, -1)``. Parameter correspondence (MARS B frame, Savage eqs. 8-11):
+``kappa_ii = Kg[i][i]``, ``kappa_iii = ag_i``, ``v_ij = 2 Kg[i][j]``, ``mu_ij = Ka[i][j]``,
+``lambda_ii = Ka[i][i]``, ``lambda_iii = aa_i``, ``lambda_i = ba_i``.
+Gyro biases come from the stationary windows (sect. 9.4 mitigation: mean gyro minus the
+earth rate of the window's attitude), not from the rotation sequences.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
+from ..types import ImuBatch, JointBatch
+from .windows import Window, stationary_windows
+
+FloatArray = NDArray[np.float64]
+AXES = 'xyz'
+
+#: Estimated parameters: (name, SensorErrors field, index). Kg entries are symmetric pairs.
+PARAMS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
+    *((f'Kg_{a}{a}', 'gyro_scale_misalignment', (i, i)) for i, a in enumerate(AXES)),
+    ('Kg_xy', 'gyro_scale_misalignment', (0, 1)), ('Kg_xz', 'gyro_scale_misalignment', (0, 2)),
+    ('Kg_yz', 'gyro_scale_misalignment', (1, 2)),
+    *((f'ag_{a}', 'gyro_scale_asymmetry', (i,)) for i, a in enumerate(AXES)),
+    *((f'Ka_{a}{b}', 'accel_scale_misalignment', (i, j))
+      for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
+    *((f'aa_{a}', 'accel_scale_asymmetry', (i,)) for i, a in enumerate(AXES)),
+    *((f'ba_{a}', 'accel_bias_m_s2', (i,)) for i, a in enumerate(AXES)),
+)
+PARAM_NAMES = tuple(p[0] for p in PARAMS)
+N_GYRO_PARAMS = 9  # the first 9 act on the gyros (they need the DCM re-integrated)
+#: finite-difference step per parameter: dimensionless 1e-6, accel bias 1e-5 m/s^2
+_EPS = np.array([1e-6] * 21 + [1e-5] * 3)
+
+#: Savage's Table 1 (restated in METHODS.md): initial down axis, axis along the outer
+#: fixture axis, and the sequential rotations about IMU axes (axis, degrees).
+TABLE1: dict[str, tuple[str, str, tuple[tuple[str, float], ...]]] = {
+    '1': ('z', 'y', (('y', 360),)), '2': ('z', 'x', (('x', 360),)),
+    '3': ('x', 'y', (('z', 360),)),
+    '1a': ('z', 'y', (('y', -360),)), '2a': ('z', 'x', (('x', -360),)),
+    '3a': ('x', 'y', (('z', -360),)),
+    '4': ('z', 'y', (('y', 180), ('z', 180), ('y', 180), ('z', 180))),
+    '5': ('z', 'x', (('x', 180), ('z', 180), ('x', 180), ('z', 180))),
+    '6': ('x', 'y', (('y', 180), ('z', 90), ('x', 180), ('z', 90),
+                     ('y', 180), ('z', 90), ('x', 180), ('z', 90))),
+    '7': ('y', 'x', (('x', 180),)), '8': ('z', 'x', (('x', 180),)),
+    '9': ('x', 'y', (('z', 180),)), '10': ('y', 'x', (('z', 180),)),
+    '11': ('z', 'y', (('y', 180),)), '12': ('x', 'y', (('y', 180),)),
+    '13': ('z', 'y', (('z', 180), ('y', 180))), '14': ('z', 'x', (('z', 180), ('x', 180))),
+}
+
+
+# ----------------------------------------------------------------------------- error model
+def add_errors(x: FloatArray, omega_rad_s: FloatArray, f_m_s2: FloatArray,
+               which: str = 'both') -> tuple[FloatArray, FloatArray]:
+    """Add the residual errors ``x`` (order :data:`PARAM_NAMES`) to compensated streams.
+
+    CONTRACT 3 linear terms: ``w + Kg w + ag |w|`` and ``f + Ka f + aa |f| + ba``.
+    """
+    w = omega_rad_s
+    f = f_m_s2
+    if which in ('both', 'gyro'):
+        Kg = np.diag(x[0:3]).astype(float)
+        Kg[0, 1] = Kg[1, 0] = x[3]
+        Kg[0, 2] = Kg[2, 0] = x[4]
+        Kg[1, 2] = Kg[2, 1] = x[5]
+        w = w + w @ Kg.T + x[6:9] * np.abs(w)
+    if which in ('both', 'accel'):
+        Ka = x[9:18].reshape(3, 3)
+        f = f + f @ Ka.T + x[18:21] * np.abs(f) + x[21:24]
+    return w, f
+
+
+def _errors_from_vector(x: FloatArray) -> dict[str, FloatArray]:
+    """The SensorErrors fields touched by ``x`` (the others are not included)."""
+    out: dict[str, FloatArray] = {
+        'gyro_scale_misalignment': np.zeros((3, 3)), 'gyro_scale_asymmetry': np.zeros(3),
+        'accel_scale_misalignment': np.zeros((3, 3)), 'accel_scale_asymmetry': np.zeros(3),
+        'accel_bias_m_s2': np.zeros(3)}
+    for v, (_, fld, idx) in zip(x, PARAMS):
+        out[fld][idx] = v
+        if fld == 'gyro_scale_misalignment':
+            out[fld][idx[::-1]] = v
+    return out
+
+
+# ----------------------------------------------------------------------------- attitude
+def cumulative_dcm(omega_rad_s: FloatArray, dt_s: FloatArray) -> FloatArray:
+    """``C_k = exp(w_1 dt_1) ... exp(w_k dt_k)`` for every k, shape ``(N, 3, 3)``.
+
+    Exact for mean-over-interval rates about a fixed axis (SRT rotations are about one
+    IMU axis at a time). scipy has no cumulative rotation product, hence the log-depth
+    (Hillis-Steele) scan here.
+    """
+    C = Rotation.from_rotvec(omega_rad_s * dt_s[:, None]).as_matrix()
+    shift = 1
+    while shift < C.shape[0]:
+        nxt = C.copy()
+        nxt[shift:] = C[:-shift] @ C[shift:]
+        C = nxt
+        shift *= 2
+    return C
+
+
+# ----------------------------------------------------------------------------- sequences
+@dataclass(frozen=True)
+class SrtSequence:
+    """A rotation sequence between two stationary windows.
+
+    Attributes
+    ----------
+    index : int
+        Order in the recording (0-based).
+    start, end : Window
+        Stationary windows before and after.
+    rotations : tuple of (axis, deg)
+        The rotations seen by the gyros (axis = dominant IMU axis of each rotation).
+    down_axis : str
+        IMU axis (with sign) pointing down at the start, e.g. ``'+z'``.
+    label : str
+        ``'srt:<id>'`` if it matches a Table 1 sequence, else ``'seq:<index>'``.
+    """
+
+    index: int
+    start: Window
+    end: Window
+    rotations: tuple[tuple[str, float], ...]
+    down_axis: str
+    label: str
+
+
+def _detect_rotations(omega: FloatArray, dt: FloatArray, thr_rad_s: float = 0.05,
+                      ) -> tuple[tuple[str, float], ...]:
+    """Split a sequence's gyro data into single-axis rotations (axis, degrees)."""
+    moving = np.linalg.norm(omega, axis=1) > thr_rad_s
+    rots = []
+    m = np.concatenate([[False], moving, [False]]).astype(np.int8)
+    d = np.diff(m)
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        ang = (omega[a:b] * dt[a:b, None]).sum(axis=0)
+        k = int(np.argmax(np.abs(ang)))
+        deg = float(np.degrees(ang[k]))
+        if abs(deg) < 5.0:
+            continue
+        if rots and rots[-1][0] == AXES[k]:  # a pause inside one rotation
+            rots[-1] = (AXES[k], rots[-1][1] + deg)
+        else:
+            rots.append((AXES[k], deg))
+    return tuple((a, float(45.0 * np.round(v / 45.0))) for a, v in rots)
+
+
+def _down_axis(R_enu_imu: FloatArray) -> str:
+    u = R_enu_imu.T @ np.array([0.0, 0.0, -1.0])
+    k = int(np.argmax(np.abs(u)))
+    return ('+' if u[k] > 0 else '-') + AXES[k]
+
+
+def _match_table1(down_axis: str, rotations: tuple[tuple[str, float], ...]) -> str | None:
+    for sid, (down, _, rots) in TABLE1.items():
+        if down_axis == '+' + down and tuple((a, float(d)) for a, d in rots) == rotations:
+            return sid
+    return None
+
+
+def find_sequences(stamps_ns: NDArray[np.int64], omega_rad_s: FloatArray,
+                   windows: Sequence[Window], R_enu_imu_windows: FloatArray,
+                   min_rotation_deg: float = 20.0) -> list[SrtSequence]:
+    """Pair consecutive stationary windows that have a rotation between them."""
+    dt = _dt(stamps_ns)
+    seqs = []
+    for k in range(len(windows) - 1):
+        w0, w1 = windows[k], windows[k + 1]
+        rots = _detect_rotations(omega_rad_s[w0.i1:w1.i0], dt[w0.i1:w1.i0])
+        if not rots or max(abs(d) for _, d in rots) < min_rotation_deg:
+            continue
+        down = _down_axis(R_enu_imu_windows[k])
+        sid = _match_table1(down, rots)
+        label = f'srt:{sid}' if sid else f'seq:{len(seqs)}'
+        seqs.append(SrtSequence(len(seqs), w0, w1, rots, down, label))
+    return seqs
+
+
+def _dt(stamps_ns: NDArray[np.int64]) -> FloatArray:
+    d = np.diff(np.asarray(stamps_ns, np.int64)) * 1e-9
+    nominal = float(np.median(d)) if d.size else 0.01
+    return np.concatenate([[nominal], d])
+
+
+# ----------------------------------------------------------------------------- measurements
+@dataclass
+class _Geometry:
+    """Everything the measurement function needs besides the data (one recording)."""
+
+    stamps_ns: NDArray[np.int64]
+    sequences: list[SrtSequence]
+    windows: list[Window]
+    R_enu_imu_windows: FloatArray  # (W, 3, 3) nominal attitude per window
+    g_m_s2: float
+    omega_ie_enu: FloatArray
+    seq_window_idx: list[tuple[int, int]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        ids = {id(w): i for i, w in enumerate(self.windows)}
+        self.seq_window_idx = [(ids[id(s.start)], ids[id(s.end)]) for s in self.sequences]
+        self.dt = _dt(self.stamps_ns)
+        self.t_s = (self.stamps_ns - self.stamps_ns[0]) * 1e-9
+
+    def horizontal_basis(self, k: int) -> FloatArray:
+        """Two orthonormal horizontal directions in BStrt: the two most level IMU axes."""
+        u = self.down(self.seq_window_idx[k][0])
+        order = np.argsort(np.abs(u))[:2]
+        order.sort()
+        E = []
+        for j in order:
+            e = np.eye(3)[j] - u * u[j]
+            for prev in E:
+                e = e - prev * (prev @ e)
+            E.append(e / np.linalg.norm(e))
+        return np.array(E)
+
+    def down(self, w: int) -> FloatArray:
+        """Unit down vector in the IMU frame at window ``w`` (ENU down = (0, 0, -1))."""
+        return self.R_enu_imu_windows[w].T @ np.array([0.0, 0.0, -1.0])
+
+    @property
+    def row_names(self) -> list[str]:
+        names = []
+        for s, k in zip(self.sequences, range(len(self.sequences))):
+            E = self.horizontal_basis(k)
+            for e in E:
+                j = int(np.argmax(np.abs(e)))
+                names.append(f"{s.label} dA_{'-' if e[j] < 0 else '+'}{AXES[j]}")
+        names += [f'window {w} down' for w in range(len(self.windows))]
+        return names
+
+
+def _sequence_dcms(geo: _Geometry, omega: FloatArray, k: int) -> FloatArray:
+    """Mid-interval ``C_B^BStrt`` for samples ``start.i0 .. end.i1`` of sequence ``k`` (eq. 2)."""
+    s = geo.sequences[k]
+    a, b = s.start.i0, s.end.i1
+    C = cumulative_dcm(omega[a:b], geo.dt[a:b])
+    w_e = geo.R_enu_imu_windows[geo.seq_window_idx[k][0]].T @ geo.omega_ie_enu
+    tau = np.cumsum(geo.dt[a:b])
+    E = Rotation.from_rotvec(-tau[:, None] * w_e).as_matrix()
+    C = E @ C
+    prev = np.concatenate([np.eye(3)[None], C[:-1]])
+    return 0.5 * (C + prev)
+
+
+def measurements(geo: _Geometry, omega: FloatArray, f: FloatArray,
+                 dcms: list[FloatArray] | None = None) -> tuple[FloatArray, list[FloatArray]]:
+    """Measurement vector: per sequence the horizontal change (2 rows), per window the down
+    component ``u_dwn . <f> + g`` (Savage eq. 1), in m/s^2. Returns ``(y, dcms)``."""
+    if dcms is None:
+        dcms = [_sequence_dcms(geo, omega, k) for k in range(len(geo.sequences))]
+    rows = []
+    for k, s in enumerate(geo.sequences):
+        a = s.start.i0
+        C = dcms[k]
+        a_start = np.einsum('nij,nj->i', C[:s.start.i1 - a], f[a:s.start.i1]) / (
+            s.start.i1 - a)
+        a_end = np.einsum('nij,nj->i', C[s.end.i0 - a:], f[s.end.i0:s.end.i1]) / (
+            s.end.i1 - s.end.i0)
+        rows.extend(geo.horizontal_basis(k) @ (a_end - a_start))
+    for w, win in enumerate(geo.windows):
+        rows.append(geo.down(w) @ f[win.i0:win.i1].mean(axis=0) + geo.g_m_s2)
+    return np.array(rows), dcms
+
+
+def sensitivities(geo: _Geometry, omega: FloatArray, f: FloatArray) -> FloatArray:
+    """``d y / d x`` by forward differences through :func:`measurements` (rows x params).
+
+    The processing is linear in the errors to first order; steps of 1e-6 keep the
+    second-order terms (< 1e-12 g) and the rounding (~1e-10 g) far below the noise.
+    """
+    y0, dcms = measurements(geo, omega, f)
+    J = np.zeros((y0.size, len(PARAMS)))
+    for j in range(len(PARAMS)):
+        x = np.zeros(len(PARAMS))
+        x[j] = _EPS[j]
+        if j < N_GYRO_PARAMS:
+            w1, _ = add_errors(x, omega, f, 'gyro')
+            y1, _ = measurements(geo, w1, f)
+        else:
+            _, f1 = add_errors(x, omega, f, 'accel')
+            y1, _ = measurements(geo, omega, f1, dcms)
+        J[:, j] = (y1 - y0) / _EPS[j]
+    return J
+
+
+def measurement_sigmas(geo: _Geometry, gyro_noise_rad_s_rt_hz: float,
+                       accel_noise_m_s2_rt_hz: float) -> FloatArray:
+    """One-sigma of each row from white noise (Savage sect. 9.1-9.2): accelerometer noise
+    averaged over the windows, gyro angle random walk over the sequence times g."""
+    sig = []
+    for k, s in enumerate(geo.sequences):
+        t_s = 0.5 * (s.start.t0_s + s.start.t1_s)
+        t_e = 0.5 * (s.end.t0_s + s.end.t1_s)
+        var = (accel_noise_m_s2_rt_hz ** 2 * (1 / s.start.duration_s + 1 / s.end.duration_s)
+               + (geo.g_m_s2 * gyro_noise_rad_s_rt_hz) ** 2 * (t_e - t_s))
+        sig += [np.sqrt(var)] * 2
+    sig += [accel_noise_m_s2_rt_hz / np.sqrt(w.duration_s) for w in geo.windows]
+    return np.array(sig)
+
+
+def noise_densities(stamps_ns: NDArray[np.int64], gyro: FloatArray, accel: FloatArray,
+                    windows: Sequence[Window]) -> tuple[float, float]:
+    """White-noise densities (gyro rad/s/rtHz, accel m/s^2/rtHz) from the windows.
+
+    Per window, the sample standard deviation of first differences / sqrt(2) (immune to
+    slow drift) times sqrt(dt); the median over windows and axes.
+    """
+    dt = float(np.median(np.diff(stamps_ns))) * 1e-9
+    sg, sa = [], []
+    for w in windows:
+        sg.append(np.std(np.diff(gyro[w.i0:w.i1], axis=0), axis=0) / np.sqrt(2))
+        sa.append(np.std(np.diff(accel[w.i0:w.i1], axis=0), axis=0) / np.sqrt(2))
+    return (float(np.median(sg)) * np.sqrt(dt), float(np.median(sa)) * np.sqrt(dt))
+
+
+@dataclass(frozen=True)
+class LsqResult:
+    """Weighted least squares with rank detection."""
+
+    x: FloatArray  # (P,), zero where not estimated
+    cov: FloatArray  # (P, P), zero rows/cols where not estimated
+    estimated: NDArray[np.bool_]
+    residual: FloatArray  # y - J x, m/s^2
+    chi2: float
+    dof: int
+
+
+def solve(J: FloatArray, y: FloatArray, sigma: FloatArray, rtol: float = 1e-2) -> LsqResult:
+    """Solve ``y = J x`` by weighted least squares; fix what the rows do not excite.
+
+    Columns are normalised, then QR with column pivoting (scipy) ranks them; columns past
+    the numerical rank are fixed at zero. The covariance is the noise one times
+    ``max(1, chi2/dof)`` (the residual scatter when it exceeds the noise model).
+    """
+    Jw = J / sigma[:, None]
+    yw = y / sigma
+    norms = np.linalg.norm(Jw, axis=0)
+    live = norms > 0
+    Js = np.where(live, Jw / np.where(live, norms, 1.0), 0.0)
+    _, R, piv = scipy.linalg.qr(Js, mode='economic', pivoting=True)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > rtol * d[0])) if d.size and d[0] > 0 else 0
+    est = np.zeros(J.shape[1], bool)
+    est[piv[:rank]] = True
+    est &= live
+    A = Jw[:, est]
+    sol, *_ = np.linalg.lstsq(A, yw, rcond=None)
+    x = np.zeros(J.shape[1])
+    x[est] = sol
+    r = y - J @ x
+    chi2 = float(np.sum((r / sigma) ** 2))
+    dof = int(y.size - est.sum())
+    scale = max(1.0, chi2 / dof) if dof > 0 else 1.0
+    cov = np.zeros((J.shape[1], J.shape[1]))
+    cov[np.ix_(est, est)] = np.linalg.inv(A.T @ A) * scale
+    return LsqResult(x, cov, est, r, chi2, dof)
+
+
+# ----------------------------------------------------------------------------- design tool
+def synthesize_sequence(seq_id: str, g_m_s2: float, omega_ie_enu: FloatArray, *,
+                        rate_hz: float = 100.0, dwell_s: float = 10.0,
+                        rate_rad_s: float = 1.0, outer_axis_enu: FloatArray | None = None,
+                        ) -> tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray]:
+    """Ideal (error- and noise-free) IMU data of one Table 1 sequence.
+
+    The IMU starts with the Table 1 axis down and the named axis along the (horizontal)
+    outer fixture axis (default north); each rotation about an IMU axis follows a
+    ``1 - cos`` rate profile with peak ``2 * rate_rad_s``. Gyro: mean rate per interval
+    (rotation + earth rate); accel: specific force ``R^T (0, 0, g)`` at mid-interval.
+
+    Returns
+    -------
+    stamps_ns, gyro_rad_s, accel_m_s2, R_enu_imu0
+    """
+    down, along, rots = TABLE1[seq_id]
+    o = np.array([0.0, 1.0, 0.0]) if outer_axis_enu is None else np.asarray(outer_axis_enu)
+    cols = {down: np.array([0.0, 0.0, -1.0]), along: o}
+    third = next(a for a in AXES if a not in cols)
+    i_third = AXES.index(third)
+    # right-handed: column of the third axis = cross of the other two in cyclic order
+    nxt, prv = AXES[(i_third + 1) % 3], AXES[(i_third + 2) % 3]
+    cols[third] = np.cross(cols[nxt], cols[prv])
+    R0 = np.stack([cols[a] for a in AXES], axis=1)
+    dt = 1.0 / rate_hz
+    n_dw = int(round(dwell_s * rate_hz))
+    incs = [np.zeros((n_dw, 3))]
+    for axis, deg in rots:
+        ang = np.radians(deg)
+        T = abs(ang) / rate_rad_s
+        n = int(np.ceil(T * rate_hz))
+        t = np.arange(n + 1) * (T / n)
+        theta = ang * (t / T - np.sin(2 * np.pi * t / T) / (2 * np.pi))
+        inc = np.zeros((n, 3))
+        inc[:, AXES.index(axis)] = np.diff(theta)
+        incs.append(inc)
+    incs.append(np.zeros((n_dw, 3)))
+    dtheta = np.concatenate(incs)  # rotation increments about body axes, per sample
+    N = dtheta.shape[0]
+    R_body = np.concatenate([np.eye(3)[None], cumulative_dcm(dtheta, np.ones(N))])
+    R = R0 @ R_body  # (N+1) attitudes at sample boundaries, earth-fixed
+    R_mid = Rotation.from_matrix(R[:-1]) * Rotation.from_rotvec(0.5 * dtheta)
+    Rm = R_mid.as_matrix()
+    gyro = dtheta / dt + np.einsum('nji,j->ni', Rm, omega_ie_enu)
+    accel = np.einsum('nji,j->ni', Rm, np.array([0.0, 0.0, g_m_s2]))
+    stamps = (np.arange(1, N + 1) * dt * 1e9).round().astype(np.int64)
+    return stamps, gyro, accel, R0
+
+
+def design_sensitivities(seq_ids: Sequence[str], g_m_s2: float = 9.80665,
+                         latitude_deg: float = 45.0, **kw: Any,
+                         ) -> tuple[FloatArray, list[str]]:
+    """Sensitivity matrix (rows x :data:`PARAM_NAMES`) of a set of Table 1 sequences,
+    computed through the processing on ideal data (the "linear model of eqs. 3-5 in code").
+    """
+    lat = np.radians(latitude_deg)
+    w_ie = 7.2921151467e-5 * np.array([0.0, np.cos(lat), np.sin(lat)])
+    Js, names = [], []
+    for sid in seq_ids:
+        stamps, gyro, accel, R0 = synthesize_sequence(sid, g_m_s2, w_ie, **kw)
+        n_dw = int(round(kw.get('dwell_s', 10.0) * kw.get('rate_hz', 100.0)))
+        t = (stamps - stamps[0]) * 1e-9
+        N = len(stamps)
+        w0 = Window(0, n_dw, float(t[0]), float(t[n_dw - 1]), np.zeros(0))
+        w1 = Window(N - n_dw, N, float(t[N - n_dw]), float(t[-1]), np.zeros(0))
+        R_end = R0
+        for axis, deg in TABLE1[sid][2]:
+            R_end = R_end @ Rotation.from_rotvec(np.radians(deg) * np.eye(3)[AXES.index(axis)]
+                                                 ).as_matrix()
+        seq = SrtSequence(0, w0, w1, TABLE1[sid][2], '+' + TABLE1[sid][0], f'srt:{sid}')
+        geo = _Geometry(stamps, [seq], [w0, w1], np.stack([R0, R_end]), g_m_s2, w_ie)
+        Js.append(sensitivities(geo, gyro, accel))
+        names += geo.row_names
+    return np.concatenate(Js), names
+
+
+# ----------------------------------------------------------------------------- processor
+def gyro_bias_from_windows(stamps_ns: NDArray[np.int64], gyro_rad_s: FloatArray,
+                           windows: Sequence[Window], R_enu_imu_windows: FloatArray,
+                           omega_ie_enu: FloatArray, gyro_noise_rad_s_rt_hz: float,
+                           ) -> tuple[FloatArray, FloatArray]:
+    """Gyro bias as the mean over all windows of gyro minus the earth rate (Savage 9.4).
+
+    Returns ``(bias, sigma)``; sigma is the larger of the white-noise value over the total
+    window time and the scatter of the per-window means (bias instability, mounting).
+    """
+    means, durs = [], []
+    for w, R in zip(windows, R_enu_imu_windows):
+        means.append(gyro_rad_s[w.i0:w.i1].mean(axis=0) - R.T @ omega_ie_enu)
+        durs.append(w.duration_s)
+    m = np.array(means)
+    wts = np.array(durs) / np.sum(durs)
+    bias = wts @ m
+    sig_noise = gyro_noise_rad_s_rt_hz / np.sqrt(np.sum(durs))
+    sig_scatter = (np.sqrt(wts @ (m - bias) ** 2 / max(len(m) - 1, 1)) if len(m) > 1
+                   else np.zeros(3))
+    return bias, np.maximum(sig_noise, sig_scatter)
+
+
+def _grade_sigmas(grade: Any) -> dict[str, FloatArray]:
+    """Assumed one-sigma of every SensorErrors field from an ImuGrade (zeros without one)."""
+    s = getattr(grade, 'sigma', None)
+
+    def get(name: str) -> float:
+        return float(getattr(s, name, 0.0)) if s is not None else 0.0
+
+    def mat(scale: str, mis: str) -> FloatArray:
+        return np.where(np.eye(3, dtype=bool), get(scale), get(mis))
+
+    r = np.full((3, 3), get('size_effect_m'))
+    np.fill_diagonal(r, 0.0)
+    return {
+        'gyro_bias_rad_s': np.full(3, get('gyro_bias_rad_s')),
+        'gyro_scale_misalignment': mat('gyro_scale', 'gyro_misalignment_rad'),
+        'gyro_scale_asymmetry': np.full(3, get('gyro_asymmetry')),
+        'gyro_g_sensitivity_rad_s_per_m_s2': np.full((3, 3), get('gyro_g_sensitivity')),
+        'accel_bias_m_s2': np.full(3, get('accel_bias_m_s2')),
+        'accel_scale_misalignment': mat('accel_scale', 'accel_misalignment_rad'),
+        'accel_scale_asymmetry': np.full(3, get('accel_asymmetry')),
+        'accel_quadratic_per_m_s2': np.full(3, get('accel_quadratic')),
+        'size_effect_m': r,
+    }
+
+
+#: SensorErrors field -> CONTRACT 4 key
+FIELD_KEYS = {
+    'gyro_bias_rad_s': 'gyroscope.bias',
+    'gyro_scale_misalignment': 'gyroscope.scale_misalignment',
+    'gyro_scale_asymmetry': 'gyroscope.scale_asymmetry',
+    'gyro_g_sensitivity_rad_s_per_m_s2': 'gyroscope.g_sensitivity',
+    'accel_bias_m_s2': 'accelerometer.bias',
+    'accel_scale_misalignment': 'accelerometer.scale_misalignment',
+    'accel_scale_asymmetry': 'accelerometer.scale_asymmetry',
+    'accel_quadratic_per_m_s2': 'accelerometer.quadratic',
+    'size_effect_m': 'accelerometer.size_effect',
+}
+
+
+def _fields(errors: Any) -> dict[str, FloatArray]:
+    return {k: np.array(getattr(errors, k), float) for k in FIELD_KEYS}
+
+
+def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
+              **opts: Any) -> Any:
+    """Savage's SRT as a CalibrationResult (CONTRACT 4); options as :func:`estimate`."""
+    from ..calibration import CalibrationResult
+    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, **opts)
+    return CalibrationResult(errors=errors, sigma=sigma, frame_id=imu.frame_id or 'imu_link',
+                             fixed=tuple(fixed), extra=extra)
+
+
+def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None, *,
+             iterations: int = 3, initial: Any = None, min_window_s: float = 4.0,
+             window_margin_s: float = 0.5, rtol: float = 1e-2, **_: Any,
+             ) -> tuple[Any, Any, list[str], dict[str, Any]]:
+    """Savage's SRT on a recording: windows, eqs. (1)-(2), linear model, least squares.
+
+    Parameters
+    ----------
+    imu, joints : ImuBatch, JointBatch
+        Raw IMU data (CONTRACT 1) and the fixture's joint states.
+    fixture : Fixture
+        Nominal fixture (site, joints, nominal IMU mounting).
+    grade : ImuGrade, optional
+        Gives the assumed sigmas of the parameters the SRT does not estimate; the noise
+        used for the sigmas is always measured from the stationary windows.
+    iterations : int
+        Re-plays with the updated compensation (Savage sect. 8); 2-3 suffice.
+    initial : CalibrationResult, optional
+        Starting compensation (e.g. a previous SRT); its non-estimated values are kept.
+
+    Returns
+    -------
+    errors, sigma : SensorErrors
+    fixed : list of str
+        CONTRACT 4 keys not estimated (written at their assumed value and sigma).
+    extra : dict
+        Estimated: gyro Kg, ag, bias (windows); accel Ka, aa, bias, as far as the sequence
+        set excites them; the rest is written at its assumed value and listed as fixed.
+        ``extra['srt']`` holds per-sequence measurements, residuals and sensitivities.
+    """
+    from ..sensor_model import SensorErrors, compensate
+
+    names = tuple(fixture.joint_names)
+    windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s,
+                                 margin_s=window_margin_s)
+    if len(windows) < 2:
+        raise InputError(f'SRT needs stationary windows of >= {min_window_s} s before and '
+                         f'after each rotation; found {len(windows)}')
+    R_w = fixture.R_enu_imu(np.stack([w.q_rad for w in windows]))
+    site = fixture.site
+    g = float(site.gravity)
+    w_ie = np.asarray(site.omega_ie_enu, float)
+    gyro_raw = np.asarray(imu.gyro_rad_s, float)
+    accel_raw = np.asarray(imu.accel_m_s2, float)
+    seqs = find_sequences(imu.stamps_ns, gyro_raw, windows, R_w)
+    if not seqs:
+        raise InputError('no rotation sequence between stationary windows in the recording')
+    geo = _Geometry(imu.stamps_ns, seqs, list(windows), R_w, g, w_ie)
+    ng, na = noise_densities(imu.stamps_ns, gyro_raw, accel_raw, windows)
+    sig_y = measurement_sigmas(geo, ng, na)
+    assumed = _grade_sigmas(grade)
+    cur = _fields(initial.errors) if initial is not None else _fields(SensorErrors.zeros())
+    history = []
+    for it in range(max(1, iterations)):
+        errs = SensorErrors(**cur)
+        omega, f = compensate(errs, gyro_raw, accel_raw)
+        omega, f = np.asarray(omega, float), np.asarray(f, float)
+        # gyro bias residual from the windows (sect. 9.4), then the SRT rows
+        db, sig_bg = gyro_bias_from_windows(imu.stamps_ns, omega, windows, R_w, w_ie, ng)
+        cur['gyro_bias_rad_s'] = cur['gyro_bias_rad_s'] + db
+        omega = omega - db
+        y, _ = measurements(geo, omega, f)
+        J = sensitivities(geo, omega, f)
+        sol = solve(J, y, sig_y, rtol)
+        for fld, val in _errors_from_vector(sol.x).items():
+            cur[fld] = cur[fld] + val
+        history.append({'iteration': it, 'max_abs_correction': float(np.max(np.abs(sol.x))),
+                        'gyro_bias_correction_rad_s': db.tolist(),
+                        'chi2': sol.chi2, 'dof': sol.dof,
+                        'rms_residual_m_s2': float(np.sqrt(np.mean(sol.residual ** 2)))})
+    sig = {k: v.copy() for k, v in assumed.items()}
+    if initial is not None:
+        sig = _fields(initial.sigma)
+    sd = np.sqrt(np.diag(sol.cov))
+    for fld, val in _errors_from_vector(sd).items():
+        mask = _errors_from_vector(sol.estimated.astype(float))[fld] > 0
+        sig[fld][mask] = val[mask]
+    sig['gyro_bias_rad_s'] = sig_bg
+    fixed = ['gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect']
+    not_est = [n for n, e in zip(PARAM_NAMES, sol.estimated) if not e]
+    for fld, key in FIELD_KEYS.items():
+        if any(PARAMS[i][1] == fld for i, n in enumerate(PARAM_NAMES) if n in not_est):
+            fixed.append(key)
+    row_names = geo.row_names
+    seq_info = []
+    n_h = 2 * len(seqs)
+    for k, s in enumerate(seqs):
+        rows = [2 * k, 2 * k + 1]
+        seq_info.append({
+            'label': s.label, 'down_axis': s.down_axis,
+            'rotations': [[a, d] for a, d in s.rotations],
+            'start_window_s': [s.start.t0_s, s.start.t1_s],
+            'end_window_s': [s.end.t0_s, s.end.t1_s],
+            'rows': [row_names[r] for r in rows],
+            'delta_a_h_m_s2': [float(y[r]) for r in rows],
+            'residual_m_s2': [float(sol.residual[r]) for r in rows],
+            'sigma_m_s2': [float(sig_y[r]) for r in rows],
+            'sensitivity': {row_names[r]: {PARAM_NAMES[j]: float(J[r, j])
+                                           for j in range(J.shape[1])
+                                           if abs(J[r, j]) > 1e-3 * g}
+                            for r in rows},
+        })
+    windows_info = [{'t_s': [w.t0_s, w.t1_s], 'down_m_s2_plus_g': float(y[n_h + i]),
+                     'residual_m_s2': float(sol.residual[n_h + i])}
+                    for i, w in enumerate(windows)]
+    extra = {'method': 'srt',
+             'srt': {'sequences': seq_info, 'windows': windows_info,
+                     'not_estimated': not_est, 'iterations': history,
+                     'noise': {'gyro_rad_s_rt_hz': ng, 'accel_m_s2_rt_hz': na},
+                     'gravity_m_s2': g}}
+    return SensorErrors(**cur), SensorErrors(**sig), fixed, extra

@@ -1,0 +1,437 @@
+"""The IMU sensor model of CONTRACT section 3, in both directions.
+
+Gyroscopes, axis i::
+
+    w_meas_i = omega_i + sum_j Kg[i][j] omega_j + ag_i |omega_i| + sum_j G[i][j] f_j + bg_i
+
+Accelerometers, axis i (sensor i at the point r_i of the body, r_i[i] = 0)::
+
+    f_i_at_ri = f_i + (omega_dot x r_i + omega x (omega x r_i))_i
+    a_meas_i  = f_i_at_ri + sum_j Ka[i][j] f_j + aa_i |f_i| + qa_i f_i^2 + ba_i
+
+The size-effect term is Kozlov & Kapralov, "Millimeter-level calibration of IMU size
+effect", eq. 1; the gyro misalignment matrix Kg is symmetric by the definition of the body
+frame (Savage, "Improved strapdown IMU calibration procedures", MARS frame:
+kappa_ij = kappa_ji). :func:`measure` is the forward model (noise-free, instantaneous);
+:func:`compensate` its exact inverse.
+
+The fixed order of the 45 free parameters (:meth:`SensorErrors.as_vector`,
+:data:`PARAMETER_NAMES`, :data:`PARAMETER_SLICES`)::
+
+    0:3    gyroscope.bias                  bg (x, y, z)                 [rad/s]
+    3:9    gyroscope.scale_misalignment    Kg xx, yy, zz, xy, xz, yz    (Kg[j][i] = Kg[i][j])
+    9:12   gyroscope.scale_asymmetry       ag (x, y, z)
+    12:21  gyroscope.g_sensitivity         G row-major                  [(rad/s)/(m/s^2)]
+    21:24  accelerometer.bias              ba (x, y, z)                 [m/s^2]
+    24:33  accelerometer.scale_misalignment Ka row-major
+    33:36  accelerometer.scale_asymmetry   aa (x, y, z)
+    36:39  accelerometer.quadratic         qa (x, y, z)                 [1/(m/s^2)]
+    39:45  accelerometer.size_effect       r_xy, r_xz, r_yx, r_yz, r_zx, r_zy  [m]
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .config import require_mapping
+from .errors import ConfigError
+
+FloatArray = NDArray[np.float64]
+
+#: |Kg - Kg^T| above this is not symmetric (CONTRACT 3: symmetry is the definition).
+SYMMETRY_TOLERANCE = 1e-12
+
+_AXES = 'xyz'
+#: Upper-triangle index pairs of Kg in vector order.
+KG_PAIRS: tuple[tuple[int, int], ...] = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+#: Off-diagonal size-effect index pairs (row i = r_i, component j) in vector order.
+SIZE_EFFECT_PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
+_FULL_PAIRS = tuple((i, j) for i in range(3) for j in range(3))
+
+# (dotted CONTRACT 4 key, dataclass field, shape, index pairs or None for a vector)
+_LAYOUT: tuple[tuple[str, str, tuple[int, ...], tuple[tuple[int, int], ...] | None], ...] = (
+    ('gyroscope.bias', 'gyro_bias_rad_s', (3,), None),
+    ('gyroscope.scale_misalignment', 'gyro_scale_misalignment', (3, 3), KG_PAIRS),
+    ('gyroscope.scale_asymmetry', 'gyro_scale_asymmetry', (3,), None),
+    ('gyroscope.g_sensitivity', 'gyro_g_sensitivity_rad_s_per_m_s2', (3, 3), _FULL_PAIRS),
+    ('accelerometer.bias', 'accel_bias_m_s2', (3,), None),
+    ('accelerometer.scale_misalignment', 'accel_scale_misalignment', (3, 3), _FULL_PAIRS),
+    ('accelerometer.scale_asymmetry', 'accel_scale_asymmetry', (3,), None),
+    ('accelerometer.quadratic', 'accel_quadratic_per_m_s2', (3,), None),
+    ('accelerometer.size_effect', 'size_effect_m', (3, 3), SIZE_EFFECT_PAIRS),
+)
+
+#: The CONTRACT section 4 keys (dotted, below ``imu_calibration``), in vector order.
+PARAMETER_KEYS: tuple[str, ...] = tuple(k for k, *_ in _LAYOUT)
+#: Dotted key -> dataclass field name.
+FIELD_OF_KEY: dict[str, str] = {k: f for k, f, *_ in _LAYOUT}
+
+
+def _build_index() -> tuple[dict[str, slice], tuple[str, ...]]:
+    slices: dict[str, slice] = {}
+    names: list[str] = []
+    start = 0
+    for key, _, shape, pairs in _LAYOUT:
+        if pairs is None:
+            names += [f'{key}[{_AXES[i]}]' for i in range(shape[0])]
+            count = shape[0]
+        else:
+            names += [f'{key}[{_AXES[i]}{_AXES[j]}]' for i, j in pairs]
+            count = len(pairs)
+        slices[key] = slice(start, start + count)
+        start += count
+    return slices, tuple(names)
+
+
+#: Dotted key -> slice of :meth:`SensorErrors.as_vector`.
+#: Names of the 45 vector entries, e.g. ``'gyroscope.scale_misalignment[xy]'``.
+PARAMETER_SLICES, PARAMETER_NAMES = _build_index()
+#: Length of :meth:`SensorErrors.as_vector`.
+N_PARAMETERS = len(PARAMETER_NAMES)
+
+
+@dataclass(frozen=True, eq=False)
+class SensorErrors:
+    """Constant IMU errors (CONTRACT 3); all fields numpy arrays, read-only after creation.
+
+    Raises ``ValueError`` on a wrong shape, a non-finite value, an asymmetric ``Kg``
+    (beyond :data:`SYMMETRY_TOLERANCE`) or a non-zero size-effect diagonal.
+    """
+
+    gyro_bias_rad_s: FloatArray  # (3,) bg
+    gyro_scale_misalignment: FloatArray  # (3, 3) Kg, symmetric
+    gyro_scale_asymmetry: FloatArray  # (3,) ag
+    gyro_g_sensitivity_rad_s_per_m_s2: FloatArray  # (3, 3) G
+    accel_bias_m_s2: FloatArray  # (3,) ba
+    accel_scale_misalignment: FloatArray  # (3, 3) Ka
+    accel_scale_asymmetry: FloatArray  # (3,) aa
+    accel_quadratic_per_m_s2: FloatArray  # (3,) qa
+    size_effect_m: FloatArray  # (3, 3) row i = r_i, zero diagonal
+
+    def __post_init__(self) -> None:
+        for key, name, shape, _ in _LAYOUT:
+            a = np.array(getattr(self, name), dtype=float)
+            if a.shape != shape:
+                raise ValueError(f'{name} ({key}) must have shape {shape}, got {a.shape}')
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f'{name} ({key}) has non-finite values')
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        kg = self.gyro_scale_misalignment
+        if np.max(np.abs(kg - kg.T)) > SYMMETRY_TOLERANCE:
+            raise ValueError('gyro_scale_misalignment (Kg) must be symmetric (CONTRACT 3)')
+        if np.any(np.diag(self.size_effect_m) != 0.0):
+            raise ValueError('size_effect_m must have a zero diagonal (r_i[i] = 0)')
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def zeros(cls) -> 'SensorErrors':
+        """An error-free IMU."""
+        return cls.from_vector(np.zeros(N_PARAMETERS))
+
+    @classmethod
+    def from_vector(cls, x: ArrayLike) -> 'SensorErrors':
+        """Inverse of :meth:`as_vector` (order in the module docstring)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (N_PARAMETERS,):
+            raise ValueError(f'expected a vector of {N_PARAMETERS}, got shape {x.shape}')
+        kwargs: dict[str, FloatArray] = {}
+        for key, name, shape, pairs in _LAYOUT:
+            seg = x[PARAMETER_SLICES[key]]
+            if pairs is None:
+                kwargs[name] = seg.copy()
+                continue
+            m = np.zeros(shape)
+            for v, (i, j) in zip(seg, pairs):
+                m[i, j] = v
+            if key == 'gyroscope.scale_misalignment':
+                m = np.triu(m) + np.triu(m, 1).T
+            kwargs[name] = m
+        return cls(**kwargs)
+
+    def as_vector(self) -> FloatArray:
+        """All 45 free parameters in the fixed order of the module docstring."""
+        out = np.empty(N_PARAMETERS)
+        for key, name, _, pairs in _LAYOUT:
+            a = getattr(self, name)
+            sl = PARAMETER_SLICES[key]
+            out[sl] = a if pairs is None else [a[i, j] for i, j in pairs]
+        return out
+
+    def get(self, key: str) -> FloatArray:
+        """The array of a dotted CONTRACT 4 key, e.g. ``'gyroscope.bias'``."""
+        return getattr(self, FIELD_OF_KEY[key])  # type: ignore[no-any-return]
+
+    def replace(self, **changes: Any) -> 'SensorErrors':
+        """A copy with some fields changed (by field name)."""
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ CONTRACT 4 mapping
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """``{'gyroscope': {...}, 'accelerometer': {...}}`` with plain Python floats/lists."""
+        out: dict[str, dict[str, Any]] = {'gyroscope': {}, 'accelerometer': {}}
+        for key, name, _, _ in _LAYOUT:
+            group, leaf = key.split('.')
+            out[group][leaf] = getattr(self, name).tolist()
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str | None = None, prefix: str = '',
+                  nonnegative: bool = False) -> 'SensorErrors':
+        """Validate a ``{'gyroscope': {...}, 'accelerometer': {...}}`` mapping (CONTRACT 4).
+
+        Parameters
+        ----------
+        data : mapping
+        source : str, optional
+            File name for messages.
+        prefix : str
+            Dotted key of ``data`` inside the file (e.g. ``'imu_calibration.sigma'``).
+        nonnegative : bool
+            Refuse negative values (for one-sigma uncertainties).
+
+        Raises
+        ------
+        ConfigError
+            Unknown or missing key, wrong shape, non-number, NaN/inf, asymmetric Kg,
+            non-zero size-effect diagonal, negative sigma; names ``source`` and the key.
+        """
+        def full(k: str) -> str:
+            return f'{prefix}.{k}' if prefix else k
+
+        d = require_mapping(data, source, prefix or None)
+        groups = ('gyroscope', 'accelerometer')
+        for g in d:
+            if g not in groups:
+                raise ConfigError(f'unknown key (known keys: {", ".join(groups)})', source,
+                                  full(str(g)))
+        kwargs: dict[str, FloatArray] = {}
+        for g in groups:
+            if g not in d:
+                raise ConfigError('missing required key', source, full(g))
+            gd = require_mapping(d[g], source, full(g))
+            leaves = [k.split('.')[1] for k in PARAMETER_KEYS if k.startswith(g + '.')]
+            for leaf in gd:
+                if leaf not in leaves:
+                    raise ConfigError(f'unknown key (known keys: {", ".join(leaves)})', source,
+                                      full(f'{g}.{leaf}'))
+            for leaf in leaves:
+                key = f'{g}.{leaf}'
+                if leaf not in gd:
+                    raise ConfigError('missing required key', source, full(key))
+                _, name, shape, _ = _LAYOUT[PARAMETER_KEYS.index(key)]
+                kwargs[name] = _array(gd[leaf], shape, source, full(key), nonnegative)
+        kg = kwargs['gyro_scale_misalignment']
+        asym = float(np.max(np.abs(kg - kg.T)))
+        if asym > SYMMETRY_TOLERANCE:
+            raise ConfigError(f'must be symmetric (CONTRACT 3), |Kg - Kg^T| = {asym:.3g}',
+                              source, full('gyroscope.scale_misalignment'))
+        if np.any(np.diag(kwargs['size_effect_m']) != 0.0):
+            raise ConfigError('the diagonal must be zero (r_i[i] = 0, CONTRACT 3)', source,
+                              full('accelerometer.size_effect'))
+        return cls(**kwargs)
+
+
+def _array(value: Any, shape: tuple[int, ...], source: str | None, key: str,
+           nonnegative: bool) -> FloatArray:
+    """A nested list of finite numbers of exactly ``shape``."""
+    def bad(what: str) -> ConfigError:
+        want = 'a list of 3 numbers' if len(shape) == 1 else 'a 3x3 matrix (list of 3 rows)'
+        return ConfigError(f'expected {want}, {what}', source, key)
+
+    rows = [value] if len(shape) == 1 else value
+    if not isinstance(rows, list) or len(rows) != (1 if len(shape) == 1 else shape[0]):
+        raise bad(f'got {value!r}')
+    for r in rows:
+        if not isinstance(r, list) or len(r) != shape[-1]:
+            raise bad(f'got {value!r}')
+        for v in r:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise bad(f'got {v!r}')
+            if not math.isfinite(v):
+                raise ConfigError(f'value {v!r} is not finite', source, key)
+            if nonnegative and v < 0:
+                raise ConfigError(f'a standard deviation cannot be negative ({v!r})', source,
+                                  key)
+    return np.array(value, dtype=float)
+
+
+# ----------------------------------------------------------------------------- the model
+def size_effect_term(size_effect_m: ArrayLike, omega_rad_s: ArrayLike,
+                     omega_dot_rad_s2: ArrayLike) -> FloatArray:
+    """``(omega_dot x r_i + omega x (omega x r_i))_i`` for i = x, y, z (Kozlov eq. 1).
+
+    Parameters
+    ----------
+    size_effect_m : (3, 3)
+        Row i = r_i, the position of accelerometer i relative to the reference point.
+    omega_rad_s, omega_dot_rad_s2 : (..., 3)
+        Body rate relative to inertial space and its time derivative, body frame.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        What accelerometer i senses beyond the specific force at the reference point.
+    """
+    r = np.asarray(size_effect_m, dtype=float)
+    w = np.asarray(omega_rad_s, dtype=float)
+    wd = np.asarray(omega_dot_rad_s2, dtype=float)
+    w2 = np.einsum('...j,...j->...', w, w)
+    out = np.empty(np.broadcast_shapes(w.shape, wd.shape))
+    for i in range(3):
+        # omega x (omega x r) = omega (omega . r) - r |omega|^2
+        centripetal = w[..., i] * (w @ r[i]) - r[i, i] * w2
+        out[..., i] = np.cross(wd, r[i])[..., i] + centripetal
+    return out
+
+
+def measure(errors: SensorErrors, omega_ib_imu_rad_s: ArrayLike,
+            omega_dot_ib_imu_rad_s2: ArrayLike,
+            f_imu_m_s2: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Instantaneous noise-free sensor outputs from the true motion (CONTRACT 3).
+
+    Parameters
+    ----------
+    errors : SensorErrors
+    omega_ib_imu_rad_s, omega_dot_ib_imu_rad_s2, f_imu_m_s2 : (..., 3)
+        True body rate, its derivative, and specific force at the reference point.
+
+    Returns
+    -------
+    gyro_rad_s, accel_m_s2 : ndarray, shape (..., 3)
+    """
+    w = np.asarray(omega_ib_imu_rad_s, dtype=float)
+    f = np.asarray(f_imu_m_s2, dtype=float)
+    e = errors
+    gyro = (w + w @ e.gyro_scale_misalignment.T + e.gyro_scale_asymmetry * np.abs(w)
+            + f @ e.gyro_g_sensitivity_rad_s_per_m_s2.T + e.gyro_bias_rad_s)
+    accel = (f + size_effect_term(e.size_effect_m, w, omega_dot_ib_imu_rad_s2)
+             + f @ e.accel_scale_misalignment.T + e.accel_scale_asymmetry * np.abs(f)
+             + e.accel_quadratic_per_m_s2 * f * f + e.accel_bias_m_s2)
+    return gyro, accel
+
+
+def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
+                         causal: bool = False) -> FloatArray:
+    """Angular acceleration estimated from mean-over-interval rates (CONTRACT 1 samples).
+
+    Sample k is the mean rate over (t_{k-1}, t_k]; the mean of omega_dot over that
+    interval is (omega(t_k) - omega(t_{k-1})) / dt, which the difference of neighbouring
+    mean rates estimates. ``causal=False``: second-order central differences on the
+    (possibly uneven) stamps, second-order one-sided at both ends (:func:`numpy.gradient`).
+    ``causal=True``: backward difference (mean rate k minus mean rate k-1), which refers
+    to the time half a sample earlier; the first sample gets the first difference.
+
+    Parameters
+    ----------
+    stamps_ns : (N,) int
+        Strictly increasing stamps [ns].
+    gyro_rad_s : (N, 3)
+        Mean rates (already compensated, for the size effect).
+
+    Returns
+    -------
+    ndarray, shape (N, 3) [rad/s^2]
+    """
+    stamps = np.asarray(stamps_ns)
+    w = np.asarray(gyro_rad_s, dtype=float)
+    if stamps.ndim != 1 or w.shape != (stamps.shape[0], 3):
+        raise ValueError(f'stamps (N,) and rates (N, 3) expected, got {stamps.shape} '
+                         f'and {w.shape}')
+    n = stamps.shape[0]
+    if n < 2:
+        return np.zeros_like(w)
+    t_s = (stamps - stamps[0]).astype(float) * 1e-9
+    dt = np.diff(t_s)
+    if np.any(dt <= 0):
+        raise ValueError('stamps must be strictly increasing')
+    if causal:
+        d = np.diff(w, axis=0) / dt[:, None]
+        return np.concatenate([d[:1], d], axis=0)
+    return np.asarray(np.gradient(w, t_s, axis=0, edge_order=2 if n > 2 else 1))
+
+
+def compensate(errors: SensorErrors, gyro_meas_rad_s: ArrayLike, accel_meas_m_s2: ArrayLike,
+               omega_dot_imu_rad_s2: ArrayLike | None = None,
+               stamps_ns: ArrayLike | None = None,
+               max_iterations: int = 100) -> tuple[FloatArray, FloatArray]:
+    """Exact inverse of :func:`measure`: body rate and specific force from raw outputs.
+
+    Solves the CONTRACT 3 equations for ``(omega, f)`` by fixed-point iteration::
+
+        omega <- (I + Kg)^-1 (w_meas - bg - G f - ag |omega|)
+        f     <- (I + Ka)^-1 (a_meas - ba - s(omega, omega_dot) - aa |f| - qa f^2)
+
+    with ``s`` the size-effect term (Kozlov eq. 1), until neither changes any more (to
+    machine precision: the contraction factor is of the order of the asymmetry, quadratic
+    and g-sensitivity terms, ~1e-3, so a handful of iterations suffice).
+
+    Parameters
+    ----------
+    errors : SensorErrors
+    gyro_meas_rad_s, accel_meas_m_s2 : (..., 3)
+        Raw outputs.
+    omega_dot_imu_rad_s2 : (..., 3), optional
+        Angular-acceleration estimate used for the size effect.
+    stamps_ns : (N,), optional
+        Sample stamps: without ``omega_dot_imu_rad_s2``, omega_dot is estimated from the
+        compensated rates with :func:`mean_rate_derivative` (samples (N, 3) in order).
+        If neither is given, omega_dot is taken as zero: only the centripetal part
+        ``omega x (omega x r_i)`` of the size effect is removed (right for stationary or
+        constant-rate data; the caller's choice otherwise).
+    max_iterations : int
+        ``RuntimeError`` if the iteration has not converged by then (absurd errors).
+
+    Returns
+    -------
+    omega_rad_s, f_m_s2 : ndarray, shape (..., 3)
+    """
+    e = errors
+    wm = np.asarray(gyro_meas_rad_s, dtype=float)
+    am = np.asarray(accel_meas_m_s2, dtype=float)
+    has_size = bool(np.any(e.size_effect_m != 0.0))
+    if omega_dot_imu_rad_s2 is None and stamps_ns is None:
+        omega_dot_imu_rad_s2 = np.zeros(3)
+    inv_g = np.linalg.inv(np.eye(3) + e.gyro_scale_misalignment)
+    inv_a = np.linalg.inv(np.eye(3) + e.accel_scale_misalignment)
+    wm0 = wm - e.gyro_bias_rad_s
+    am0 = am - e.accel_bias_m_s2
+    omega = wm0 @ inv_g.T
+    f = am0 @ inv_a.T
+    # convergence is judged relative to the largest value (floors: 1e-12 rad/s, 1e-9 m/s^2)
+    w_scale = max(float(np.max(np.abs(omega), initial=0.0)), 1e-12)
+    f_scale = max(float(np.max(np.abs(f), initial=0.0)), 1e-9)
+    tiny = 4.0 * np.finfo(float).eps
+    last = math.inf
+    stalled = 0
+    for _ in range(max_iterations):
+        omega_new = (wm0 - f @ e.gyro_g_sensitivity_rad_s_per_m_s2.T
+                     - e.gyro_scale_asymmetry * np.abs(omega)) @ inv_g.T
+        if not has_size:
+            s = 0.0
+        elif omega_dot_imu_rad_s2 is not None:
+            s = size_effect_term(e.size_effect_m, omega_new, omega_dot_imu_rad_s2)
+        else:
+            s = size_effect_term(e.size_effect_m, omega_new,
+                                 mean_rate_derivative(np.asarray(stamps_ns), omega_new))
+        f_new = (am0 - s - e.accel_scale_asymmetry * np.abs(f)
+                 - e.accel_quadratic_per_m_s2 * f * f) @ inv_a.T
+        change = max(float(np.max(np.abs(omega_new - omega), initial=0.0)) / w_scale,
+                     float(np.max(np.abs(f_new - f), initial=0.0)) / f_scale)
+        omega, f = omega_new, f_new
+        if change <= tiny:
+            break
+        # rounding can keep the last bit flickering: stop once the change no longer shrinks
+        stalled = stalled + 1 if change >= last else 0
+        if stalled >= 3 and change < 1e-12:
+            break
+        last = change
+    else:
+        raise RuntimeError(f'compensate did not converge in {max_iterations} iterations '
+                           f'(last relative change {change:.3g}): implausible sensor errors')
+    return omega, f

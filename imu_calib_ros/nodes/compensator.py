@@ -1,0 +1,153 @@
+"""``compensator`` node: republish a raw IMU corrected with a calibration file (no estimator).
+
+The robot-side deployment after a calibration: subscribes ``imu/data_raw`` (sensor-data
+QoS), publishes ``imu/data_corrected`` with the same stamp and frame, values from
+:class:`~imu_calib_ros.nodes.common.StreamCompensation` in a
+:class:`~imu_calib_ros.nodes.common.CompensationWorker` thread (the code the calibration
+node uses), covariances from the calibration's sigmas plus the sensor noise, and
+``orientation_covariance[0] = -1`` (REP-145). A raw sample in another frame than the
+calibration's, or with a non-finite value, is dropped, counted and reported.
+
+Run: ``compensator --ros-args -p calibration_file:=calib.yaml [-p imu_grade:=NAME]``.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from sensor_msgs.msg import Imu
+
+from ..core.calibration import CalibrationResult
+from ..core.errors import ConfigError
+from ..core.types import ImuSample
+from ..msg_adapters.convert import ImuCovariances, imu_msg_from_sample, imu_sample_from_msg
+from .common import (CompensationWorker, StreamCompensation, declare_config, diag9, finite,
+                     reliable_qos, run_node,
+                     sensor_qos)
+
+NODE_NAME = 'compensator'
+
+
+@dataclass(frozen=True)
+class CompensatorConfig:
+    """Parameters of the compensator node (``config/compensator.yaml``)."""
+
+    calibration_file: str = field(default='', metadata={
+        'doc': 'calibration file (CONTRACT 4) to apply; required'})
+    frame_id: str = field(default='', metadata={
+        'doc': 'expected IMU frame; empty = the calibration file\'s frame_id'})
+    imu_grade: str = field(default='', metadata={
+        'doc': 'IMU grade (name in config/imus or path) giving the noise densities; '
+               'empty = use gyro_noise_rad_s_rt_hz / accel_noise_m_s2_rt_hz'})
+    gyro_noise_rad_s_rt_hz: float = field(default=0.0, metadata={
+        'doc': 'gyro white noise (ARW) [rad/s/sqrt(Hz)] when imu_grade is empty', 'min': 0.0})
+    accel_noise_m_s2_rt_hz: float = field(default=0.0, metadata={
+        'doc': 'accelerometer white noise (VRW) [m/s^2/sqrt(Hz)] when imu_grade is empty',
+        'min': 0.0})
+    imu_rate_hz: float = field(default=200.0, metadata={
+        'doc': 'nominal IMU rate [Hz] (gap threshold 1.5 periods, noise of the mean)',
+        'min': 1.0, 'max': 100000.0})
+    queue_depth: int = field(default=100, metadata={
+        'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
+        'max': 100000})
+    diagnostics_rate_hz: float = field(default=1.0, metadata={
+        'doc': 'rate of /diagnostics [Hz]; 0 = off', 'min': 0.0, 'max': 100.0})
+
+
+def noise_densities(grade_name: str, gyro: float, accel: float) -> tuple[float, float]:
+    """White-noise densities from an IMU grade file, or the given values if no grade."""
+    if not grade_name:
+        return gyro, accel
+    from ..core.imu_grade import load_grade
+    grade = load_grade(grade_name)
+    return grade.gyro_noise_rad_s_rt_hz, grade.accel_noise_m_s2_rt_hz
+
+
+class CompensatorNode(Node):
+    """Applies a fixed calibration to every raw IMU sample."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.config: CompensatorConfig = declare_config(self, CompensatorConfig)
+        cfg = self.config
+        if not cfg.calibration_file:
+            raise ConfigError('set the calibration file: -p calibration_file:=PATH',
+                              'ROS parameters', 'calibration_file')
+        self.calibration = CalibrationResult.load(cfg.calibration_file)
+        if cfg.frame_id and cfg.frame_id != self.calibration.frame_id:
+            raise ConfigError(f'calibration is for frame "{self.calibration.frame_id}", '
+                              f'but frame_id parameter is "{cfg.frame_id}"',
+                              cfg.calibration_file, 'imu_calibration.frame_id')
+        gyro_n, accel_n = noise_densities(cfg.imu_grade, cfg.gyro_noise_rad_s_rt_hz,
+                                          cfg.accel_noise_m_s2_rt_hz)
+        self.compensation = StreamCompensation(self.calibration, gyro_n, accel_n,
+                                               1.0 / cfg.imu_rate_hz)
+        self.worker = CompensationWorker(self.compensation, self._publish_batch)
+        self.rejected: dict[str, int] = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0}
+        self.published = 0
+        self._last_stamp_ns: int | None = None
+        self._pub = self.create_publisher(Imu, 'imu/data_corrected',
+                                         reliable_qos(cfg.queue_depth))
+        self._sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
+                                             sensor_qos(cfg.queue_depth))
+        if cfg.diagnostics_rate_hz > 0:
+            self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+            self.create_timer(1.0 / cfg.diagnostics_rate_hz, self._on_diag_timer)
+        self.get_logger().info(f'applying {cfg.calibration_file} (frame '
+                               f'"{self.calibration.frame_id}")')
+
+    def _reject(self, reason: str, detail: str) -> None:
+        self.rejected[reason] += 1
+        self.get_logger().warn(f'dropped raw IMU sample: {detail}', throttle_duration_sec=5.0)
+
+    def _on_imu(self, msg: Imu) -> None:
+        sample = imu_sample_from_msg(msg)
+        if sample.frame_id != self.calibration.frame_id:
+            self._reject('frame_id', f'frame "{sample.frame_id}" is not the calibration\'s '
+                                     f'"{self.calibration.frame_id}"')
+            return
+        if not finite(sample.gyro_rad_s, sample.accel_m_s2):
+            self._reject('non_finite', 'non-finite value')
+            return
+        if self._last_stamp_ns is not None and sample.stamp_ns <= self._last_stamp_ns:
+            self._reject('out_of_order', 'stamp not after the previous one')
+            return
+        self._last_stamp_ns = sample.stamp_ns
+        self.worker.put(sample)
+
+    def _publish_batch(self, samples: list[ImuSample], omega: Any, f: Any, gvar: Any,
+                       avar: Any) -> None:
+        for k, s in enumerate(samples):
+            self._pub.publish(imu_msg_from_sample(
+                ImuSample(s.stamp_ns, omega[k], f[k], s.frame_id), Imu,
+                ImuCovariances(diag9(gvar[k]), diag9(avar[k]))))
+        self.published += len(samples)
+
+    def destroy_node(self) -> None:
+        """Stop the compensation thread, then the node."""
+        self.worker.stop()
+        super().destroy_node()
+
+    def _on_diag_timer(self) -> None:
+        status = DiagnosticStatus(name=f'{self.get_name()}: IMU compensation',
+                                  hardware_id=self.calibration.frame_id)
+        bad = sum(self.rejected.values())
+        status.level = DiagnosticStatus.OK if bad == 0 else DiagnosticStatus.WARN
+        status.message = 'OK' if bad == 0 else f'{bad} samples dropped'
+        status.values = [KeyValue(key='published', value=str(self.published))] + [
+            KeyValue(key=f'rejected.{k}', value=str(v)) for k, v in self.rejected.items()]
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(arr)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``compensator``."""
+    return run_node(CompensatorNode, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

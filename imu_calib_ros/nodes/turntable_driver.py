@@ -1,0 +1,175 @@
+"""``turntable_driver`` node: drive a real turntable through a motion plan.
+
+Publishes the plan (the same ``config/plans`` files the simulator runs) as one
+``trajectory_msgs/JointTrajectory`` on ``joint_trajectory`` (remap it to the table's
+controller, e.g. ``/joint_trajectory_controller/joint_trajectory`` of a ros2_control joint
+trajectory controller). The points carry position, velocity and acceleration sampled from the
+plan's analytic profile at every breakpoint and every ``point_period_s`` in between, so a
+quintic interpolation through them (the controller's, or ``turntable_sim``'s) reproduces the
+plan's moves exactly and its oscillations to O(h^6).
+
+The profile starts where the table is: the driver waits for one ``joint_states`` message (up to
+``wait_timeout_s``; else it starts from zero angles). It then follows ``joint_states`` until
+the plan's end plus ``settle_s`` (node clock: ``use_sim_time`` works), logs the largest
+tracking error, and exits with status 0 (1 if the error exceeded ``max_tracking_error_deg``
+or no joint states came).
+
+Run: ``turntable_driver --ros-args -p plan:=savage_srt -p fixture:=my_table.yaml
+-r joint_trajectory:=/joint_trajectory_controller/joint_trajectory``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from ..core.types import FloatArray
+from ..msg_adapters.convert import joint_sample_from_msg
+from .common import declare_config, reliable_qos, run_node, sensor_qos
+
+NODE_NAME = 'turntable_driver'
+
+
+@dataclass(frozen=True)
+class TurntableDriverConfig:
+    """Parameters of the turntable driver node."""
+
+    fixture: str = field(default='three_axis', metadata={
+        'doc': 'fixture file (CONTRACT 2) or shipped fixture name (joint names and axes)'})
+    plan: str = field(default='demo_short', metadata={
+        'doc': 'motion plan (config/plans name or path)'})
+    point_period_s: float = field(default=0.05, metadata={
+        'doc': 'largest time between trajectory points [s]', 'min': 0.001, 'max': 10.0})
+    lead_in_s: float = field(default=0.5, metadata={
+        'doc': 'time before the first point [s] (the controller starts from rest)',
+        'min': 0.0})
+    wait_for_subscribers: int = field(default=1, metadata={
+        'doc': 'wait for this many trajectory subscribers (the controller)', 'min': 0})
+    wait_timeout_s: float = field(default=10.0, metadata={
+        'doc': 'longest wait for subscribers and the first joint state [s wall]', 'min': 0.0})
+    settle_s: float = field(default=1.0, metadata={
+        'doc': 'time after the plan before checking and exiting [s]', 'min': 0.0})
+    max_tracking_error_deg: float = field(default=1.0, metadata={
+        'doc': 'exit status 1 if a joint state deviates more from the plan [deg]', 'min': 0.0})
+
+
+def trajectory_from_profile(profile: Any, point_period_s: float,
+                            lead_in_s: float = 0.0) -> JointTrajectory:
+    """A JointTrajectory through ``profile``: breakpoints plus a grid of ``point_period_s``.
+
+    Point ``k`` has ``time_from_start = lead_in_s + t_k`` and the profile's ``q, qd, qdd`` at
+    ``t_k`` (rad, rad/s, rad/s^2). ``header.stamp`` is zero: start on receipt.
+    """
+    t_end = float(profile.duration_s)
+    n_grid = max(int(math.ceil(t_end / point_period_s)), 1)
+    t = np.union1d(np.asarray(profile.breakpoints_s, float),
+                   np.linspace(0.0, t_end, n_grid + 1))
+    keep = np.concatenate([[True], np.diff(t) > 1e-3])  # drop near-duplicates
+    t = t[keep]
+    if t[-1] < t_end:
+        t = np.append(t, t_end)
+    q, qd, qdd = profile.evaluate(t)
+    msg = JointTrajectory()
+    msg.joint_names = list(profile.joint_names)
+    for k, tk in enumerate(t):
+        ts = float(tk) + lead_in_s
+        if ts <= 0.0:
+            continue  # the start state is where the table is; not a point to reach
+        sec = int(math.floor(ts))
+        msg.points.append(JointTrajectoryPoint(
+            positions=q[k].tolist(), velocities=qd[k].tolist(), accelerations=qdd[k].tolist(),
+            time_from_start=Duration(sec=sec, nanosec=int(round((ts - sec) * 1e9)) % 10**9)))
+    return msg
+
+
+class TurntableDriverNode(Node):
+    """Sends a plan as a JointTrajectory and watches the table follow it."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.config: TurntableDriverConfig = declare_config(self, TurntableDriverConfig)
+        from ..core.config import resolve_config_file
+        from ..core.fixture import Fixture
+        from ..core.plans import load_plan
+        self.fixture = Fixture.from_yaml(resolve_config_file(self.config.fixture, 'fixtures'))
+        self.plan = load_plan(self.config.plan)
+        self._pub = self.create_publisher(JointTrajectory, 'joint_trajectory', reliable_qos())
+        self.create_subscription(JointState, 'joint_states', self._on_joints, sensor_qos(50))
+        self._q_now: FloatArray | None = None
+        self._profile: Any = None
+        self._t0_ns: int | None = None
+        self.max_error_rad = 0.0
+        self.states_seen = 0
+        self._wall_start = time.monotonic()
+        self.status = 0
+        self.create_timer(0.05, self._on_timer)
+
+    def _on_joints(self, msg: JointState) -> None:
+        sample = joint_sample_from_msg(msg)
+        names = self.fixture.joint_names
+        if not all(n in sample.names for n in names):
+            return
+        q = np.array([sample.positions_rad[sample.names.index(n)] for n in names])
+        self._q_now = q
+        if self._profile is None or self._t0_ns is None:
+            return
+        self.states_seen += 1
+        t = (sample.stamp_ns - self._t0_ns) * 1e-9 - self.config.lead_in_s
+        if 0.0 <= t <= self._profile.duration_s:
+            q_plan, _, _ = self._profile.evaluate(np.array([t]))
+            err = np.angle(np.exp(1j * (q - q_plan[0])))  # wrapped or continuous both work
+            self.max_error_rad = max(self.max_error_rad, float(np.max(np.abs(err))))
+
+    def _on_timer(self) -> None:
+        cfg = self.config
+        if self._profile is None:
+            waited = time.monotonic() - self._wall_start
+            ready = (self._pub.get_subscription_count() >= cfg.wait_for_subscribers
+                     and self._q_now is not None)
+            if not ready and waited < cfg.wait_timeout_s:
+                return
+            self._start()
+            return
+        now_ns = self.get_clock().now().nanoseconds
+        end_ns = self._t0_ns + int((cfg.lead_in_s + self._profile.duration_s + cfg.settle_s)
+                                   * 1e9)
+        if now_ns >= end_ns:
+            err_deg = math.degrees(self.max_error_rad)
+            ok = self.states_seen > 0 and err_deg <= cfg.max_tracking_error_deg
+            self.get_logger().info(f'plan done: {self.states_seen} joint states, largest '
+                                   f'tracking error {err_deg:.4f} deg')
+            if not ok:
+                self.get_logger().error('the table did not follow the plan (no joint states '
+                                        'or tracking error above max_tracking_error_deg)')
+            raise SystemExit(0 if ok else 1)
+
+    def _start(self) -> None:
+        from ..core.plans import build_profile
+        q0 = self._q_now if self._q_now is not None else np.zeros(self.fixture.n_joints)
+        if self._q_now is None:
+            self.get_logger().warn('no joint_states received: assuming the table is at zero')
+        self._profile = build_profile(self.plan, self.fixture, q_start_rad=q0)
+        msg = trajectory_from_profile(self._profile, self.config.point_period_s,
+                                      self.config.lead_in_s)
+        self._t0_ns = self.get_clock().now().nanoseconds
+        self._pub.publish(msg)
+        self.get_logger().info(f'plan "{self.plan.name}": {len(msg.points)} points, '
+                               f'{self._profile.duration_s:.1f} s, sent to '
+                               f'{self._pub.topic_name}')
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``turntable_driver``."""
+    return run_node(TurntableDriverNode, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,210 @@
+"""Nodes over real DDS: node processes started with --ros-args, rclpy test node in this process.
+
+No mocks of ROS. Each test session uses its own random ROS_DOMAIN_ID (set before rclpy starts)
+and localhost discovery, so parallel workers do not see each other; every child process is
+stopped in a ``finally``. Waits are generous (discovery on a loaded 2-core machine) but bounded.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import pytest
+
+os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 200))
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+import rclpy  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+
+from imu_calib_ros.core.calibration import CalibrationResult  # noqa: E402
+from imu_calib_ros.core.sensor_model import compensate  # noqa: E402
+from imu_calib_ros.core.types import ImuSample  # noqa: E402
+from imu_calib_ros.msg_adapters.convert import imu_msg_from_sample  # noqa: E402
+from imu_calib_ros.nodes.common import causal_rate_derivative, latched_qos, reliable_qos  # noqa
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope='module')
+def ros() -> Iterator[Node]:
+    rclpy.init(args=[])
+    node = rclpy.create_node(f'test_nodes_{os.getpid()}')
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def start(module: str, params: dict[str, Any], cwd: Path) -> subprocess.Popen[bytes]:
+    cmd = [sys.executable, '-m', f'imu_calib_ros.nodes.{module}', '--ros-args']
+    for k, v in params.items():
+        cmd += ['-p', f'{k}:={str(v).lower() if isinstance(v, bool) else v}']
+    return subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+
+
+def stop(proc: subprocess.Popen[bytes]) -> str:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.stdout.read().decode(errors='replace') if proc.stdout else ''
+
+
+def spin_until(node: Node, cond: Callable[[], bool], timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if cond():
+            return True
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return cond()
+
+
+def known_calibration(tmp: Path, frame_id: str = 'imu_link') -> tuple[CalibrationResult, Path]:
+    """A calibration with every term non-zero (MEMS-sized errors) and sigmas."""
+    from imu_calib_ros.core.imu_grade import draw_errors, load_grade
+    grade = load_grade('mems_mti1')
+    errors = draw_errors(grade, np.random.default_rng(3))
+    sigma = draw_errors(grade, np.random.default_rng(4))
+    sigma = type(sigma).from_vector(np.abs(sigma.as_vector()))
+    result = CalibrationResult(errors=errors, sigma=sigma, frame_id=frame_id)
+    path = tmp / 'calib.yaml'
+    result.save(path)
+    return CalibrationResult.load(path), path
+
+
+def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> None:
+    """Corrected IMU: same stamps and frame, REP-145 marker, values = offline compensation."""
+    from sensor_msgs.msg import Imu
+    calib, path = known_calibration(tmp_path)
+    proc = start('compensator', {'calibration_file': str(path), 'imu_rate_hz': 200.0,
+                                 'imu_grade': 'mems_mti1'}, tmp_path)
+    got: list[Any] = []
+    sub = ros.create_subscription(Imu, 'imu/data_corrected', got.append, reliable_qos(1000))
+    pub = ros.create_publisher(Imu, 'imu/data_raw', reliable_qos(1000))
+    try:
+        assert spin_until(ros, lambda: pub.get_subscription_count() > 0
+                          and sub.get_publisher_count() > 0, 60.0), stop(proc)
+        time.sleep(0.5)
+        rng = np.random.default_rng(7)
+        n = 300
+        stamps = 5_000_000_000 + 5_000_000 * np.arange(1, n + 1, dtype=np.int64)
+        stamps[150:] += 20_000_000  # a gap: the rate derivative restarts there
+        t = (stamps - stamps[0]) * 1e-9
+        gyro = np.c_[np.sin(3 * t), 0.5 * np.cos(2 * t), 0.2 * t] + rng.normal(0, 1e-3, (n, 3))
+        accel = np.c_[0.1 * t, -0.2 + 0 * t, 9.81 + 0 * t] + rng.normal(0, 1e-2, (n, 3))
+        for k in range(n):
+            pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
+                                                      'imu_link'), Imu))
+            rclpy.spin_once(ros, timeout_sec=0.0)
+            time.sleep(0.002)
+        assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
+    finally:
+        log = stop(proc)
+        ros.destroy_subscription(sub)
+        ros.destroy_publisher(pub)
+    out_stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got])
+    np.testing.assert_array_equal(out_stamps, stamps, err_msg=log)
+    assert all(m.header.frame_id == 'imu_link' for m in got)
+    assert all(m.orientation_covariance[0] == -1.0 for m in got)
+    omega = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z]
+                      for m in got])
+    f = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
+                  for m in got])
+    # offline: the core's compensate, one sample per call (a batch call may differ in the
+    # last bit: BLAS matmul is not row-independent), omega_dot from
+    # the causal difference with the 1.5-period gap rule
+    omega_dot = causal_rate_derivative(stamps, gyro, 0.005)
+    assert np.all(omega_dot[150] == 0) and np.any(omega_dot[151] != 0)
+    ref = [compensate(calib.errors, gyro[k:k + 1], accel[k:k + 1],
+                      omega_dot_imu_rad_s2=omega_dot[k:k + 1]) for k in range(n)]
+    omega_ref = np.vstack([r[0] for r in ref])
+    f_ref = np.vstack([r[1] for r in ref])
+    np.testing.assert_array_equal(omega, omega_ref)  # bit for bit
+    np.testing.assert_array_equal(f, f_ref)
+    # the correction is real: raw and corrected differ by about the calibration errors
+    assert np.max(np.abs(omega - gyro)) > 10 * np.max(np.abs(omega - omega_ref) + 1e-300)
+    # covariance: at least the white noise of the mean, N^2 / dt, on the diagonal
+    from imu_calib_ros.core.imu_grade import load_grade
+    g = load_grade('mems_mti1')
+    var_w = np.array([m.angular_velocity_covariance[0] for m in got])
+    assert np.all(var_w >= g.gyro_noise_rad_s_rt_hz ** 2 / 0.005 * (1 - 1e-12))
+    assert np.all(var_w >= calib.sigma.gyro_bias_rad_s[0] ** 2)
+
+
+def test_compensator_refuses_other_frame_and_bad_file(ros: Node, tmp_path: Path) -> None:
+    _, path = known_calibration(tmp_path, frame_id='imu_link')
+    proc = start('compensator', {'calibration_file': str(path), 'frame_id': 'other_imu'},
+                 tmp_path)
+    assert proc.wait(60) == 2
+    log = stop(proc)
+    assert 'imu_link' in log and 'other_imu' in log
+    text = path.read_text().replace('format_version: 1', 'format_version: 9')
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(text)
+    proc = start('compensator', {'calibration_file': str(bad)}, tmp_path)
+    assert proc.wait(60) == 2
+    assert 'format_version' in stop(proc)
+
+
+def test_calibration_node_services_sim_time_and_latched_estimates(ros: Node,
+                                                                  tmp_path: Path) -> None:
+    """A short simulated run (sim publishes /clock): save reloads, estimates latched, reset."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from std_srvs.srv import Trigger
+    out = tmp_path / 'calib_out.yaml'
+    truth = tmp_path / 'truth.yaml'
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text('name: t\ndescription: short\nsteps:\n  - dwell: {duration_s: 4}\n'
+                    '  - rotate_imu: {axis: z, angle_deg: 180, duration_s: 3}\n'
+                    '  - dwell: {duration_s: 3}\n')
+    cal = start('calibration', {'use_sim_time': True, 'output_file': str(out),
+                                'estimate_rate_hz': 2.0, 'diagnostics_rate_hz': 2.0}, tmp_path)
+    sim = start('turntable_sim', {'plan': str(plan), 'speed': 2.0, 'truth_file': str(truth),
+                                  'wait_for_subscribers': 1, 'start_stamp_s': 5000.0},
+                tmp_path)
+    diags: list[Any] = []
+    sub = ros.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    save = ros.create_client(Trigger, '/calibration/save_calibration')
+    reset = ros.create_client(Trigger, '/calibration/reset')
+    try:
+        assert save.wait_for_service(timeout_sec=60.0), stop(cal)
+        ok = spin_until(ros, lambda: any(d.header.stamp.sec >= 5008 for d in diags), 90.0)
+        assert ok, f'{len(diags)} diagnostics\n{stop(sim)}\n{stop(cal)}'
+        # use_sim_time: the node's clock is the simulated /clock (starts at 5000 s)
+        stamps = [d.header.stamp.sec for d in diags if d.status[0].name.endswith('calibration')]
+        assert stamps and min(stamps) >= 5000 and max(stamps) < 5100
+        last = [d for d in diags if d.status[0].name.endswith('IMU calibration')][-1].status[0]
+        values = {kv.key: kv.value for kv in last.values}
+        assert float(values['imu_rate_hz']) == pytest.approx(200.0, rel=0.3), values
+        assert int(values['rejected.frame_id']) == 0
+        fut = save.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=60.0)
+        assert fut.result() is not None and fut.result().success, fut.result()
+        saved = CalibrationResult.load(out)
+        assert saved.frame_id == 'imu_link'
+        assert np.all(np.isfinite(saved.sigma.as_vector()))
+        # late subscriber gets the latest estimate (transient local)
+        late: list[Any] = []
+        lsub = ros.create_subscription(Vector3Stamped, '/calibration/gyro_bias_sigma',
+                                       late.append, latched_qos())
+        assert spin_until(ros, lambda: len(late) > 0, 30.0)
+        assert late[-1].vector.x > 0
+        ros.destroy_subscription(lsub)
+        fut = reset.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=30.0)
+        assert fut.result() is not None and fut.result().success
+    finally:
+        log = stop(sim) + stop(cal)
+        ros.destroy_subscription(sub)
+    assert 'Traceback' not in log, log

@@ -1,0 +1,76 @@
+"""Node configuration without DDS: YAML files match the dataclasses, parameters, profiles."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from imu_calib_ros.core.errors import ConfigError
+from imu_calib_ros.nodes.calibration import CalibrationNodeConfig
+from imu_calib_ros.nodes.common import declare_config, load_params_file
+from imu_calib_ros.nodes.compensator import CompensatorConfig
+from imu_calib_ros.nodes.turntable_sim import QuinticProfile, TurntableSimConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize('cls,name,node', [
+    (CalibrationNodeConfig, 'calibration_node.yaml', 'calibration'),
+    (CompensatorConfig, 'compensator.yaml', 'compensator'),
+    (TurntableSimConfig, 'turntable_sim.yaml', 'turntable_sim')])
+def test_config_yaml_matches_dataclass(cls: type, name: str, node: str) -> None:
+    """The shipped params files hold exactly the dataclass defaults (and load strictly)."""
+    assert load_params_file(ROOT / 'config' / name, cls, node) == cls()
+
+
+def test_parameters_declared_from_dataclass_with_descriptors() -> None:
+    rclpy.init(args=['x', '--ros-args', '--params-file',
+                     str(ROOT / 'config' / 'calibration_node.yaml'),
+                     '-p', 'estimator.noise_scale:=2.5', '-p', 'imu_rate_hz:=1000.0'])
+    try:
+        node = Node('calibration')
+        cfg = declare_config(node, CalibrationNodeConfig)
+        assert cfg.imu_rate_hz == 1000.0 and cfg.estimator.noise_scale == 2.5
+        assert dataclasses.replace(cfg, imu_rate_hz=200.0, estimator=dataclasses.replace(
+            cfg.estimator, noise_scale=1.0)) == CalibrationNodeConfig()
+        d = node.describe_parameter('estimator.gate_probability')
+        assert d.description and d.floating_point_range[0].to_value == 1.0
+        bad = Node('bad', parameter_overrides=[Parameter('imu_rate_hz', value=-3.0)])
+        with pytest.raises(ConfigError, match='imu_rate_hz'):
+            declare_config(bad, CalibrationNodeConfig)
+        bad2 = Node('bad2', parameter_overrides=[
+            Parameter('estimator.noise_source', value='foo')])
+        with pytest.raises(ConfigError, match='estimator.noise_source'):
+            declare_config(bad2, CalibrationNodeConfig)
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_quintic_profile_through_plan_points_reproduces_the_plan() -> None:
+    """The driver's trajectory points, joined by the sim's quintics, give the plan back."""
+    from imu_calib_ros.core.config import resolve_config_file
+    from imu_calib_ros.core.fixture import Fixture
+    from imu_calib_ros.core.plans import build_profile, load_plan
+    from imu_calib_ros.nodes.turntable_driver import trajectory_from_profile
+    fx = Fixture.from_yaml(resolve_config_file('three_axis', 'fixtures'))
+    profile = build_profile(load_plan('demo_short'), fx)
+    msg = trajectory_from_profile(profile, 0.05, 0.0)
+    t = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+    q0, v0, a0 = profile.evaluate(np.array([0.0]))
+    qp = QuinticProfile(profile.joint_names, np.r_[0.0, t],
+                        np.vstack([q0, [p.positions for p in msg.points]]),
+                        np.vstack([v0, [p.velocities for p in msg.points]]),
+                        np.vstack([a0, [p.accelerations for p in msg.points]]))
+    tt = np.linspace(0.0, profile.duration_s, 50001)
+    for got, want in zip(qp.evaluate(tt), profile.evaluate(tt)):
+        # quintic pieces exactly (points at every breakpoint); cosines to O(h^6) ~ 1e-9
+        np.testing.assert_allclose(got, want, atol=1e-7)
+    hold = QuinticProfile.hold(profile.joint_names, np.array([0.1, 0.2, 0.3]), 2.0)
+    q, qd, qdd = hold.evaluate(np.array([0.0, 1.0, 2.0]))
+    np.testing.assert_array_equal(q, np.tile([0.1, 0.2, 0.3], (3, 1)))
+    assert not qd.any() and not qdd.any()
