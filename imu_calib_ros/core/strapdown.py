@@ -26,8 +26,8 @@ and 2, J. Guid. Control Dyn. 21 (1998) 19-28 and 208-221):
   plus sculling ``1/12 (dtheta_{k-1} x dv_k + dv_{k-1} x dtheta_k)`` (part 2, eq. 39; same
   unequal-interval generalisation as coning), mapped to ENU with the attitude at the start
   of the interval; the rotation and sculling terms use the rate relative to ENU,
-  ``w - R_{k-1}^T omega_ie_enu``, which takes the ENU frame's turn during the interval into
-  account (to O(omega_ie w dt^2)); Coriolis as the exact rotation
+  ``w - (R_{k-1} + R_k)^T omega_ie_enu / 2``, which takes the ENU frame's turn during the
+  interval into account (to O(omega_ie (w dt)^2)); Coriolis as the exact rotation
   ``exp(-2 omega_ie_enu dt)`` of the velocity (a linear recursion, solved in closed form over
   the batch), with the interval's force increment applied at mid-interval;
 - position: trapezoid on the velocities.

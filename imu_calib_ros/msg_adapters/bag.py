@@ -657,10 +657,11 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
                              joints.stamps_ns.astype(np.int64)])
     order = np.argsort(stamps, kind='stable')
     n_imu = len(imu)
+    # The writer names its storage file after the bag directory, so the bag is built as
+    # tmp/<final name> and only that is renamed into place (tmp is always removed).
     tmp = _temp_sibling(p, 'partial')
-    bagdir = tmp / 'bag' if single else tmp
-    if single:
-        tmp.mkdir()
+    tmp.mkdir()
+    bagdir = tmp / (p.stem if single else p.name)
     plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
     try:
         writer = Writer(bagdir, version=9, storage_plugin=plugin)
@@ -685,15 +686,14 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
             raise
         if progress is not None and done % 10000:
             progress(done % 10000)
+        result = bagdir
         if single:
             files = list(bagdir.glob('*.mcap'))
             if len(files) != 1:
                 raise BagError(f'{p}: expected one .mcap file from the writer, got {files}')
-            final_tmp = _temp_sibling(p, 'partial-file')
-            os.rename(files[0], final_tmp)
-            shutil.rmtree(tmp)
-            tmp = final_tmp
-        _install(tmp, p, overwrite)
+            result = files[0]
+        _install(result, p, overwrite)
+        _remove(tmp)
     except BagError:
         _remove(tmp)
         raise
