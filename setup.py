@@ -33,6 +33,7 @@ setup(
             'compensator = imu_calib_ros.nodes.compensator:main',
             'turntable_sim = imu_calib_ros.nodes.turntable_sim:main',
             'turntable_driver = imu_calib_ros.nodes.turntable_driver:main',
+            'bag_player = imu_calib_ros.nodes.bag_player:main',
         ],
     },
 )
