@@ -10,6 +10,7 @@ from imu_calib_ros.core.errors import ConfigError
 from imu_calib_ros.core.fixture import Fixture, Joint
 from imu_calib_ros.core.sensor_model import (
     N_PARAMETERS, PARAMETER_KEYS, PARAMETER_NAMES, PARAMETER_SLICES, SensorErrors, compensate,
+    compensate_one,
     mean_rate_derivative, measure, size_effect_term)
 
 G = 9.81
@@ -268,3 +269,41 @@ def test_single_sample_and_empty_batches() -> None:
     # zero input and no errors: exactly zero out, no spurious iteration failure
     w4, f4 = compensate(SensorErrors.zeros(), np.zeros((2, 3)), np.zeros((2, 3)))
     assert np.all(w4 == 0) and np.all(f4 == 0)
+
+
+@pytest.mark.parametrize('scale', [1.0, 40.0])
+def test_compensate_same_bits_alone_and_in_any_batch(scale: float) -> None:
+    """The live stream (one sample, Python floats) and the offline batch give identical bits.
+
+    This is what the compensator node's bit-for-bit test against offline compensation rests
+    on: each row iterates and stops on its own, with the same IEEE operations per component.
+    """
+    rng = np.random.default_rng(21)
+    e = SensorErrors.from_vector(scale * mems_errors(rng).as_vector())
+    w, wd, f = random_motion(rng, 300)
+    gm, am = measure(e, w, wd, f)
+    w_all, f_all = compensate(e, gm, am, omega_dot_imu_rad_s2=wd)
+    for size in (1, 2, 7, 9, 64):  # both the Python-float and the numpy-column paths
+        parts = [compensate(e, gm[k:k + size], am[k:k + size], wd[k:k + size])
+                 for k in range(0, len(gm), size)]
+        np.testing.assert_array_equal(np.vstack([p[0] for p in parts]), w_all)
+        np.testing.assert_array_equal(np.vstack([p[1] for p in parts]), f_all)
+    one = [compensate_one(e, gm[k], am[k], wd[k]) for k in range(len(gm))]
+    np.testing.assert_array_equal(np.array([o[0] for o in one]), w_all)
+    np.testing.assert_array_equal(np.array([o[1] for o in one]), f_all)
+    # and the result is the inverse of the model (not merely self-consistent)
+    np.testing.assert_allclose(w_all, w, rtol=0, atol=1e-12 * np.max(np.abs(w)))
+
+
+def test_compensate_non_finite_sample_is_nan_and_leaves_others() -> None:
+    e = mems_errors(np.random.default_rng(2))
+    w, wd, f = random_motion(np.random.default_rng(3), 20)
+    gm, am = measure(e, w, wd, f)
+    gm[5, 1] = np.nan
+    am[9, 2] = np.inf
+    w2, f2 = compensate(e, gm, am, wd)
+    bad = np.zeros(20, bool)
+    bad[[5, 9]] = True
+    assert np.all(np.isnan(w2[bad])) and np.all(np.isnan(f2[bad]))
+    np.testing.assert_allclose(w2[~bad], w[~bad], rtol=0, atol=1e-12 * np.max(np.abs(w)))
+    assert all(np.isnan(v) for v in compensate_one(e, gm[5], am[5], wd[5])[0])

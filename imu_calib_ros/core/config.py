@@ -148,8 +148,9 @@ def from_mapping(cls: type[T], data: Any, source: str | None = None, prefix: str
     for k in data:
         if k not in fields:
             known = ', '.join(sorted(fields))
+            name = str(k) if str(k).isprintable() else repr(k)  # keep the error one line
             raise ConfigError(f'unknown key (known keys: {known})', source,
-                              f'{prefix}.{k}' if prefix else str(k))
+                              f'{prefix}.{name}' if prefix else name)
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
         key = f'{prefix}.{name}' if prefix else name

@@ -21,14 +21,58 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from filterpy.kalman import predict as kf_predict
-from filterpy.kalman import update as kf_update
 from numpy.typing import NDArray
+from scipy.linalg.lapack import dpotrf as _potrf
+from scipy.linalg.lapack import dpotrs as _potrs
 from scipy.stats import chi2
 
 from ..rotation import skew
 from .error_model import StateLayout
 
 FloatArray = NDArray[np.float64]
+
+
+def chunk_transition_rows(layout: StateLayout, R_enu_imu: FloatArray, f_enu_m_s2: FloatArray,
+                          Mg: FloatArray, Ma: FloatArray, dt_s: FloatArray,
+                          omega_ie_enu: FloatArray) -> FloatArray:
+    """The six navigation rows of the transition matrices of ``B`` chunks (SI units).
+
+    The rows of the calibration states are those of the identity (constants and random
+    walks), so ``Phi = [[Phi_rows], [0 I]]``; :meth:`ErrorStateFilter.predict_rows` uses that.
+    Arguments as :func:`chunk_transitions`; returns ``(B, 6, N)``.
+
+    The second-order term is summed by parts, ``sum_k [(R f)_k x] C_k dt =
+    sum_j W_j R_j M_g,j dt`` with ``W_j = sum_{k>=j} [(R f)_k x] dt - [(R f)_j x] dt / 2``
+    (the same trapezoid), so that both gyro row blocks come out of one batched product
+    ``[R dt; W R dt] @ M_g`` over the chunk's samples (``einsum`` was 3x slower here).
+    """
+    B, n = dt_s.shape
+    N = layout.n
+    T = dt_s.sum(axis=1)  # (B,)
+    rows = np.zeros((B, 6, N))
+    Om = skew(omega_ie_enu)
+    rows[:, 0:3, 0:3] = np.eye(3) - Om[None] * T[:, None, None]
+    rows[:, 3:6, 3:6] = np.eye(3) - 2.0 * Om[None] * T[:, None, None]
+    dv_f = (dt_s[:, None, :] @ f_enu_m_s2)[:, 0]  # (B, 3): sum_k (R f)_k dt_k
+    rows[:, 3:6, 0:3] = -skew(dv_f)
+    gi, ai = layout.gyro_state_idx, layout.accel_state_idx
+    if not (gi.size or ai.size):
+        return rows
+    r_dt = R_enu_imu * dt_s[..., None, None]  # (B, n, 3, 3)
+    if gi.size:
+        sk = skew(f_enu_m_s2) * dt_s[..., None, None]
+        w = np.cumsum(sk[:, ::-1], axis=1)[:, ::-1] - 0.5 * sk  # W_j
+        left = np.concatenate([r_dt, w @ r_dt], axis=2)  # (B, n, 6, 3)
+        left = left.transpose(0, 2, 1, 3).reshape(B, 6, 3 * n)
+        g = left @ Mg.reshape(B, 3 * n, Mg.shape[-1])  # (B, 6, 21)
+        g = g[..., layout.gyro_cols]
+        rows[:, 0:3, gi] = -g[:, 0:3]
+        rows[:, 3:6, gi] = g[:, 3:6]
+    if ai.size:
+        left = r_dt.transpose(0, 2, 1, 3).reshape(B, 3, 3 * n)
+        a = left @ Ma.reshape(B, 3 * n, Ma.shape[-1])  # (B, 3, 26)
+        rows[:, 3:6, ai] = -a[..., layout.accel_cols]
+    return rows
 
 
 def chunk_transitions(layout: StateLayout, R_enu_imu: FloatArray, f_enu_m_s2: FloatArray,
@@ -47,7 +91,7 @@ def chunk_transitions(layout: StateLayout, R_enu_imu: FloatArray, f_enu_m_s2: Fl
     f_enu_m_s2:
         ``(B, n, 3)`` mean specific force per sample in ENU (``R f``).
     Mg, Ma:
-        ``(B, n, 3, 21)``, ``(B, n, 3, 26)`` sensor Jacobians (:mod:`.error_model`) on the
+        ``(B, n, 3, 21)``, ``(B, n, 3, 25)`` sensor Jacobians (:mod:`.error_model`) on the
         compensated samples.
     dt_s:
         ``(B, n)`` sample intervals.
@@ -56,29 +100,13 @@ def chunk_transitions(layout: StateLayout, R_enu_imu: FloatArray, f_enu_m_s2: Fl
 
     Returns
     -------
-    Phi ``(B, N, N)`` in SI units of the error state (see :func:`scale_matrices`).
+    Phi ``(B, N, N)`` in SI units of the error state (see :func:`scale_matrices`); the
+    filter itself only uses the six rows of :func:`chunk_transition_rows`.
     """
-    B = R_enu_imu.shape[0]
-    N = layout.n
-    T = dt_s.sum(axis=1)  # (B,)
+    rows = chunk_transition_rows(layout, R_enu_imu, f_enu_m_s2, Mg, Ma, dt_s, omega_ie_enu)
+    B, N = rows.shape[0], layout.n
     phi = np.broadcast_to(np.eye(N), (B, N, N)).copy()
-    Om = skew(omega_ie_enu)
-    phi[:, 0:3, 0:3] -= Om[None] * T[:, None, None]
-    phi[:, 3:6, 3:6] -= 2.0 * Om[None] * T[:, None, None]
-    dv_f = np.einsum('bnk,bn->bk', f_enu_m_s2, dt_s)
-    phi[:, 3:6, 0:3] = -skew(dv_f)
-    gi, ai = layout.gyro_state_idx, layout.accel_state_idx
-    if gi.size:
-        rmg = np.einsum('bnij,bnjp->bnip', R_enu_imu, Mg[..., layout.gyro_cols])
-        rmg *= dt_s[..., None, None]
-        phi[:, 0:3, gi] = -rmg.sum(axis=1)
-        # psi response at each sample (trapezoid within the sample), then its velocity effect
-        cum = np.cumsum(rmg, axis=1) - 0.5 * rmg
-        sk = skew(f_enu_m_s2) * dt_s[..., None, None]
-        phi[:, 3:6, gi] = np.einsum('bnij,bnjp->bip', sk, cum)
-    if ai.size:
-        rma = np.einsum('bnij,bnjp,bn->bip', R_enu_imu, Ma[..., layout.accel_cols], dt_s)
-        phi[:, 3:6, ai] = -rma
+    phi[:, 0:6, :] = rows
     return phi
 
 
@@ -120,10 +148,13 @@ class GateCounters:
 
 
 class ErrorStateFilter:
-    """Scaled error-state Kalman filter: filterpy predict / Joseph-form update + chi^2 gate.
+    """Scaled error-state Kalman filter: block-form predict, Joseph-form update + chi^2 gate.
 
     ``x`` and ``P`` are in the scaled units of ``layout``. After every update ``P`` is
     symmetrised. The state is fed back (and zeroed) by the owner, :class:`CalibrationEstimator`.
+    :meth:`predict` (filterpy) takes a full ``Phi``; the estimator uses the equivalent
+    :meth:`predict_rows`, which is ~3x cheaper for 46 states (only 6 rows of ``Phi`` differ
+    from the identity).
     """
 
     def __init__(self, layout: StateLayout, P0_scaled: FloatArray, gate_probability: float):
@@ -132,6 +163,7 @@ class ErrorStateFilter:
         self.P = np.array(P0_scaled, float)
         self.gate_probability = gate_probability
         self._gate: dict[int, float] = {}
+        self._diag = np.arange(layout.n) * (layout.n + 1)  # flat indices of diag(P)
         self.counters = GateCounters()
 
     def _threshold(self, m: int) -> float:
@@ -141,21 +173,55 @@ class ErrorStateFilter:
         return self._gate[m]
 
     def predict(self, phi_s: FloatArray, q_s: FloatArray) -> None:
-        """Propagate ``x`` and ``P`` over one chunk (filterpy ``predict``)."""
+        """Propagate ``x`` and ``P`` over one chunk with a full ``Phi`` (filterpy ``predict``)."""
         self.x, self.P = kf_predict(self.x, self.P, phi_s, q_s)
 
+    def predict_rows(self, phi_rows_s: FloatArray, q_diag_s: FloatArray) -> None:
+        """Same as :meth:`predict` for ``Phi = [[phi_rows_s], [0 I]]`` and ``Q = diag(q)``.
+
+        ``Phi P Phi^T`` by blocks (``A = phi_rows_s``, ``T = A P``): the navigation block is
+        ``T A^T``, the navigation-parameter block ``T[:, 6:]``, the parameter block is kept;
+        hand-written because filterpy's dense ``F P F^T`` costs two 46^3 products.
+        """
+        P = self.P
+        T = phi_rows_s @ P  # (6, N): rows 0..5 of Phi P
+        P[0:6, 6:] = T[:, 6:]
+        P[6:, 0:6] = T[:, 6:].T
+        P[0:6, 0:6] = T @ phi_rows_s.T
+        P.flat[self._diag] += q_diag_s
+        self.x[0:6] = phi_rows_s @ self.x
+
     def update(self, kind: str, z: FloatArray, H_s: FloatArray, R: FloatArray) -> bool:
-        """Gated Joseph-form update (filterpy ``update``); returns whether it was accepted."""
-        y = z - H_s @ self.x
-        S = H_s @ self.P @ H_s.T + R
-        nis = float(y @ np.linalg.solve(S, y))
+        """Gated Joseph-form update; returns whether it was accepted.
+
+        ``P = (I - K H) P (I - K H)^T + K R K^T``, evaluated as two rank-``m`` corrections
+        (``M = P - K (H P)``, ``P = M - (M H^T - K R) K^T``: the same product without the
+        dense ``I - K H``); ``S^-1`` through its Cholesky factor (LAPACK ``potrf/potrs``, 2 us
+        against 18 us for ``numpy.linalg.inv`` on 3x3). Hand-written instead of filterpy
+        ``update``, which recomputes ``S`` and its inverse after our gate and forms the dense
+        ``I - K H`` products: it took twice the time of this, a quarter of the filter's time.
+        An ``S`` that is not positive definite is rejected like a gated innovation.
+        """
+        P = self.P
+        PHt = P @ H_s.T  # (N, m)
+        S = H_s @ PHt + R
         c = self.counters
+        chol, info = _potrf(S)
+        y = z - H_s @ self.x
+        if info == 0:
+            S_inv_y = _potrs(chol, y)[0]
+            nis = float(y @ S_inv_y)
+        else:
+            nis = np.inf
         c.last_nis[kind] = nis
         if not np.isfinite(nis) or nis > self._threshold(len(z)):
             c.rejected[kind] = c.rejected.get(kind, 0) + 1
             return False
         c.accepted[kind] = c.accepted.get(kind, 0) + 1
         c.nis_sum[kind] = c.nis_sum.get(kind, 0.0) + nis
-        self.x, self.P = kf_update(self.x, self.P, z, R, H_s)
-        self.P = 0.5 * (self.P + self.P.T)
+        K = _potrs(chol, PHt.T)[0].T  # P H^T S^-1
+        self.x = self.x + PHt @ S_inv_y
+        M = P - K @ (H_s @ P)  # (I - K H) P
+        P = M - (M @ H_s.T - K @ R) @ K.T
+        self.P = 0.5 * (P + P.T)
         return True

@@ -19,7 +19,10 @@ and keeps the errors small enough for the linearisation (a block is 1 s by defau
 """
 from __future__ import annotations
 
+import bisect
+import logging
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -28,12 +31,13 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
+from ..input_guard import GuardConfig, InputGuard
 from ..rotation import skew
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
 from .config import EstimatorConfig
-from .ekf import ErrorStateFilter, chunk_transitions, process_noise, scale_matrices
+from .ekf import ErrorStateFilter, chunk_transition_rows, process_noise
 
 FloatArray = NDArray[np.float64]
 MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the filter
@@ -157,42 +161,71 @@ class CalibrationEstimator:
             'imu_samples': 0, 'joint_samples': 0, 'imu_processed': 0, 'chunks': 0,
             'imu_dropped_before_alignment': 0, 'imu_out_of_order': 0, 'imu_non_finite': 0,
             'joint_out_of_order': 0, 'joint_missing_names': 0, 'joint_non_finite': 0, 'gaps': 0,
-            'attitude_updates_without_joints': 0}
+            'attitude_updates_without_joints': 0,
+            'imu_dropped_at_gap': 0, 'gaps_bridged': 0, 'gaps_reinitialised': 0,
+            'divergences': 0}
         self._t0_ns: int | None = None
         self._t_last_ns: int | None = None
+        # bad input and faults (issue 6, core/input_guard.py)
+        gcfg = getattr(self, 'guard_config', None) or GuardConfig()
+        self.guard_config: GuardConfig = gcfg
+        self._guard = InputGuard(gcfg, self.fixture.site.gravity, self._joint_names,
+                                 self.fixture.joint_axes_enu)
+        self._diverged: str | None = None
+        self._good: deque[Estimate] = deque(
+            maxlen=2 + -(-gcfg.nis_window // self.config.block_chunks))
+        self._last_good_state: Estimate | None = None
+        self._last_good_cache: tuple[int, Any] | None = None
+        self._nis_hist: deque[tuple[int, int, float]] = deque()
+        self._kept_cal_P: FloatArray | None = None
+
+    def configure_guard(self, guard_config: GuardConfig) -> None:
+        """Set the bad-input / gap / divergence limits (:class:`GuardConfig`) and reset."""
+        self.guard_config = guard_config
+        self.reset()
 
     def push_imu(self, sample: ImuSample) -> None:
-        """Add one IMU sample (live node); processing happens when a chunk is complete."""
-        self._append_imu(np.array([sample.stamp_ns], np.int64),
-                         np.asarray(sample.gyro_rad_s, float).reshape(1, 3),
-                         np.asarray(sample.accel_m_s2, float).reshape(1, 3))
-        self._process()
+        """Add one IMU sample (live node); processing happens when a chunk is complete.
+
+        Bad samples are rejected by the :class:`~imu_calib_ros.core.input_guard.InputGuard`
+        (counted by reason in ``health()['rejected']``) and never reach the filter.
+        """
+        self._push_imu_arrays(np.array([sample.stamp_ns], np.int64),
+                              np.asarray(sample.gyro_rad_s, float).reshape(1, 3),
+                              np.asarray(sample.accel_m_s2, float).reshape(1, 3),
+                              sample.frame_id)
 
     def push_imu_batch(self, batch: ImuBatch) -> None:
         """Add many IMU samples (same code path as :meth:`push_imu`, vectorised)."""
         if len(batch):
-            self._append_imu(np.asarray(batch.stamps_ns, np.int64),
-                             np.asarray(batch.gyro_rad_s, float),
-                             np.asarray(batch.accel_m_s2, float))
-            self._process()
+            self._push_imu_arrays(np.asarray(batch.stamps_ns, np.int64),
+                                  np.asarray(batch.gyro_rad_s, float).reshape(-1, 3),
+                                  np.asarray(batch.accel_m_s2, float).reshape(-1, 3),
+                                  batch.frame_id)
 
     def push_joint(self, sample: JointSample) -> None:
         """Add one joint-state sample (names in any order; other joints ignored)."""
-        self._append_joint(sample.stamp_ns, sample.names, np.asarray(sample.positions_rad))
+        q = self._guard.check_joint(int(sample.stamp_ns), tuple(sample.names),
+                                    sample.positions_rad)
+        if q is not None:
+            self._append_joint_q(int(sample.stamp_ns), q)
+        self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
-        """Add many joint-state samples."""
-        idx = self._name_index(batch.names)
-        if idx is None:
-            self.counters['joint_missing_names'] += len(batch)
-            return
-        q = np.asarray(batch.positions_rad, float)[:, idx]
-        for t, qi in zip(np.asarray(batch.stamps_ns, np.int64), q):
-            self._append_joint_q(int(t), qi)
+        """Add many joint-state samples (each through the input guard)."""
+        names = tuple(batch.names)
+        q_all = np.asarray(batch.positions_rad, float)
+        for t, qi in zip(np.asarray(batch.stamps_ns, np.int64), q_all):
+            q = self._guard.check_joint(int(t), names, qi)
+            if q is not None:
+                self._append_joint_q(int(t), q)
+        self._sync_input_counters()
 
     def flush(self) -> None:
-        """Process every complete chunk (end of a bag), ignoring the joint look-ahead."""
+        """Process every complete chunk (end of a bag), ignoring the joint look-ahead, and
+        check the filter's health over that last stretch too."""
         self._process(final=True)
+        self._check_divergence()
 
     def filter_accepted(self, kind: str) -> int:
         """Accepted updates of one kind (``'velocity'`` or ``'attitude'``)."""
@@ -259,15 +292,36 @@ class CalibrationEstimator:
             return sm.compensate(errors, np.atleast_2d(gyro), np.atleast_2d(accel), omega_dot)
         return compensate
 
-    def health(self) -> dict[str, Any]:
-        """Counters, gate statistics and covariance health (for diagnostics)."""
+    def health(self, now_ns: int | None = None) -> dict[str, Any]:
+        """Counters, gate statistics, covariance health and a status (for diagnostics).
+
+        Keys added for bad input and faults (issue 6): ``status`` in {'OK', 'WARN', 'ERROR',
+        'STALE'} with a one-line ``message``; ``rejected`` {reason: count} of input samples
+        (:data:`~imu_calib_ros.core.input_guard.IMU_REASONS` and ``JOINT_REASONS``),
+        ``rejected_total``, ``flagged`` {'gap', 'long_gap'}; ``diverged`` (bool),
+        ``divergence_reason``, ``units_error``; ``last_good``: the
+        :class:`~imu_calib_ros.core.calibration.CalibrationResult` of the last healthy block
+        (frozen at divergence) or None. ``gate_accepted``/``gate_rejected`` count measurement
+        updates by kind. ``now_ns`` (the caller's clock) enables STALE: no IMU sample accepted
+        within ``stale_after_s``.
+        """
         out: dict[str, Any] = dict(self.counters)
         out['running'] = self._running
         out['dropped_groups'] = list(self.dropped_groups)
+        g = self._guard
+        out['rejected'] = dict(g.rejected)
+        out['rejected_total'] = g.rejected_total
+        out['flagged'] = dict(g.flagged)
+        out['diverged'] = self._diverged is not None
+        out['divergence_reason'] = self._diverged or ''
+        out['units_error'] = g.units_error or ''
+        out['status'], out['message'] = self._status(now_ns)
+        out['last_good'] = self._last_good_result()
         if self._filter is not None:
             c = self._filter.counters
             out['accepted'] = dict(c.accepted)
-            out['rejected'] = dict(c.rejected)
+            out['gate_accepted'] = dict(c.accepted)
+            out['gate_rejected'] = dict(c.rejected)
             out['mean_nis'] = {k: c.nis_sum[k] / max(c.accepted.get(k, 0), 1)
                                for k in c.nis_sum}
             P = self._filter.P
@@ -284,13 +338,6 @@ class CalibrationEstimator:
         except ValueError:
             return None
 
-    def _append_joint(self, stamp_ns: int, names: tuple[str, ...], q: FloatArray) -> None:
-        idx = self._name_index(tuple(names))
-        if idx is None:
-            self.counters['joint_missing_names'] += 1
-            return
-        self._append_joint_q(int(stamp_ns), np.asarray(q, float)[idx])
-
     def _append_joint_q(self, stamp_ns: int, q: FloatArray) -> None:
         if not np.all(np.isfinite(q)):
             self.counters['joint_non_finite'] += 1
@@ -306,19 +353,9 @@ class CalibrationEstimator:
         self.counters['joint_samples'] += 1
 
     def _append_imu(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray) -> None:
-        self.counters['imu_samples'] += len(t)
-        good = np.all(np.isfinite(w), axis=1) & np.all(np.isfinite(f), axis=1)
-        last = self._last_imu_stamp
-        # a sample not newer than every earlier one is dropped (bags are in receive order)
-        first = np.iinfo(np.int64).min if last is None else last
-        prev_max = np.maximum.accumulate(np.concatenate([[first], t]))[:-1]
-        mono = t > prev_max
-        self.counters['imu_non_finite'] += int((~good).sum())
-        self.counters['imu_out_of_order'] += int((good & ~mono).sum())
-        keep = good & mono
-        if not keep.any():
+        """Buffer samples the input guard accepted (finite, strictly increasing stamps)."""
+        if not len(t):
             return
-        t, w, f = t[keep], w[keep], f[keep]
         self._last_imu_stamp = int(t[-1])
         self._imu_t.append(t)
         self._imu_w.append(w)
@@ -336,6 +373,277 @@ class CalibrationEstimator:
     def _keep_imu_from(self, k: int) -> None:
         t, w, f = self._take_imu()
         self._imu_t, self._imu_w, self._imu_f = [t[k:]], [w[k:]], [f[k:]]
+
+    # ------------------------------------------------------------------ bad input and faults
+    def _push_imu_arrays(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray,
+                         frame_id: str) -> None:
+        """Input guard, then buffer and process; a long gap splits the batch (issue 6)."""
+        self.counters['imu_samples'] += len(t)
+        verdict = self._guard.check_imu(t, w, f, frame_id, diverged=self._diverged is not None)
+        self._sync_input_counters()
+        keep = verdict.keep
+        if not keep.any():
+            return
+        t, w, f = t[keep], w[keep], f[keep]
+        gaps = [int(i) for i in verdict.long_gaps]
+        bounds = sorted({0, *gaps, len(t)})
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if a in gaps and self._last_imu_stamp is not None:
+                self._on_gap(self._last_imu_stamp, int(t[a]))
+            # one block at a time, so that divergence is checked after every block
+            i = a
+            while i < b and self._diverged is None:
+                step = self.config.block_chunks * self._n if self._running else 1000
+                self._append_imu(t[i:i + step], w[i:i + step], f[i:i + step])
+                self._advance()
+                i += step
+            if self._diverged is not None and i < len(t):
+                self._guard.rejected['filter_diverged'] += len(t) - i
+                return
+
+    def _sync_input_counters(self) -> None:
+        """The estimator's historical counters, derived from the guard's reasons."""
+        r = self._guard.rejected
+        c = self.counters
+        c['imu_non_finite'] = r['non_finite']
+        c['imu_out_of_order'] = (r['duplicate_stamp'] + r['out_of_order']
+                                 + r['time_jump_backward'])
+        c['joint_missing_names'] = r['joint_missing_names']
+        c['joint_non_finite'] = r['joint_non_finite']
+        c['joint_out_of_order'] = r['joint_duplicate_stamp'] + r['joint_out_of_order']
+
+    def _advance(self) -> None:
+        """Align if needed (restoring kept calibration covariance), process, check health."""
+        if not self._running:
+            if not self._try_initialise():
+                return
+            self._restore_calibration_covariance()
+        chunks = self.counters['chunks']
+        self._process()
+        if self.counters['chunks'] != chunks:
+            self._check_divergence()
+
+    def _restore_calibration_covariance(self) -> None:
+        """After a re-initialisation: the calibration block of P is the one before the gap."""
+        if self._kept_cal_P is not None and self._filter is not None:
+            self._filter.P[6:, 6:] = self._kept_cal_P
+            self._kept_cal_P = None
+
+    def _on_gap(self, t_before_ns: int, t_after_ns: int) -> None:
+        """A gap longer than ``guard_config.max_gap_s`` between two accepted samples.
+
+        The data before the gap is processed first (a partial chunk at its end is dropped and
+        counted in ``imu_dropped_at_gap``). Policy ``'bridge'`` (only when the joints did not
+        move across the gap: the motion during the gap is lost, CONTRACT 1): inflate the
+        navigation covariance by ``bridge_*_sigma`` and the bias covariance by the bias
+        random walk over the gap; the interval itself is handled like any gap by the block
+        code (one nominal period, coning/sculling memory reset). Otherwise, or with policy
+        ``'reinitialise'``: drop the navigator and the filter, keep the calibration states
+        and their covariance block, and re-align at the next stationary window.
+        """
+        if not self._running or self._filter is None:
+            return
+        self._process(final=True)
+        self._check_divergence()
+        if self._diverged is not None or self._filter is None:
+            return
+        left = len(self._take_imu()[0])
+        if left:
+            self.counters['imu_dropped_at_gap'] += left
+            self._keep_imu_from(left)
+        cfg = self.guard_config
+        if cfg.gap_policy == 'bridge' and self._joints_still(t_before_ns, t_after_ns):
+            lay = self.layout
+            s = lay.scale
+            gap_s = (t_after_ns - t_before_ns) * 1e-9
+            P = self._filter.P
+            P[0:3, 0:3] += np.eye(3) * (cfg.bridge_attitude_sigma_rad / s[0]) ** 2
+            P[3:6, 3:6] += np.eye(3) * (cfg.bridge_velocity_sigma_m_s / s[3]) ** 2
+            assert self._q1_s is not None
+            for grp in ('gyro_bias', 'accel_bias'):  # bias random walk continues in the gap
+                if grp in lay.slices:
+                    sl = lay.slices[grp]
+                    P[sl, sl] += self._q1_s[sl, sl] * gap_s
+            self.counters['gaps_bridged'] += 1
+            return
+        self._kept_cal_P = self._filter.P[6:, 6:].copy()
+        self._running = False
+        self._nav = None
+        self._filter = None
+        self._prev = None
+        k = int(np.searchsorted(np.array(self._jt, np.int64), t_after_ns))
+        del self._jt[:k]
+        del self._jq[:k]
+        self.counters['gaps_reinitialised'] += 1
+
+    def _joints_still(self, t_before_ns: int, t_after_ns: int) -> bool:
+        """True if joint samples cover the gap and show no motion beyond the tolerance."""
+        if not self._jt:
+            return False
+        jt = np.array(self._jt, np.int64)
+        jq = np.array(self._jq)
+        i0 = int(np.searchsorted(jt, t_before_ns, side='right')) - 1
+        i1 = int(np.searchsorted(jt, t_after_ns, side='right'))
+        if i0 < 0 or jt[i1 - 1] < t_after_ns - int(0.5e9):
+            return False
+        travel = np.abs(jq[i0:i1] - jq[i0]).max()
+        return bool(travel <= self.config.stationary_joint_tolerance_rad)
+
+    def _check_divergence(self) -> None:
+        """Windowed NIS, positive definiteness, physical ranges; snapshot when healthy."""
+        if self._filter is None or self._diverged is not None:
+            return
+        cfg = self.guard_config
+        filt = self._filter
+        lay = self.layout
+        vals = self._state_values()
+        reason = None
+        v = self._nav.v_enu_m_s if self._nav is not None else np.zeros(3)
+        if not (np.all(np.isfinite(filt.P)) and np.all(np.isfinite(filt.x))
+                and np.all(np.isfinite(vals)) and np.all(np.isfinite(v))):
+            reason = 'non-finite state or covariance'
+        else:
+            try:
+                np.linalg.cholesky(filt.P)
+            except np.linalg.LinAlgError:
+                reason = ('covariance lost positive definiteness (min eigenvalue '
+                          f'{float(np.linalg.eigvalsh(filt.P).min()):.3g})')
+        if reason is None and float(np.linalg.norm(v)) > cfg.max_velocity_m_s:
+            reason = f'navigated velocity {float(np.linalg.norm(v)):.3g} m/s out of range'
+        if reason is None:
+            prior = np.concatenate([self._prior[g] for g in lay.groups]) if lay.groups \
+                else np.zeros(0)
+            over = np.abs(vals) > cfg.state_range_sigmas * prior
+            if over.any():
+                i = int(np.argmax(np.abs(vals) / np.where(prior > 0, prior, np.inf)))
+                reason = (f'state {lay.labels()[6 + i]} = {vals[i]:.3g} beyond '
+                          f'{cfg.state_range_sigmas:g} prior sigmas')
+        if reason is None:
+            reason = self._nis_window_reason()
+        if reason is not None:
+            self._declare_divergence(reason)
+        else:
+            self._good.append(self.estimate_state())
+
+    def _nis_window_reason(self) -> str | None:
+        """Gate rejections or mean NIS over the last ``nis_window`` updates out of bounds."""
+        assert self._filter is not None
+        cfg = self.guard_config
+        c = self._filter.counters
+        tot = (sum(c.accepted.values()), sum(c.rejected.values()), sum(c.nis_sum.values()))
+        hist = self._nis_hist
+        hist.append(tot)
+        n = tot[0] + tot[1]
+        while len(hist) > 1 and n - (hist[1][0] + hist[1][1]) >= cfg.nis_window:
+            hist.popleft()
+        a0, r0, s0 = hist[0]
+        n_win = n - a0 - r0
+        if n_win < cfg.nis_window:
+            return None
+        rej = tot[1] - r0
+        if rej > cfg.max_rejected_fraction * n_win:
+            return f'{rej} of the last {n_win} measurement updates failed the chi-square gate'
+        acc = tot[0] - a0
+        if acc:
+            mean = (tot[2] - s0) / acc / 3.0  # all our measurements are 3-D
+            if mean > cfg.max_mean_nis_per_dof:
+                return f'mean NIS per dof {mean:.3g} over the last {acc} updates'
+        return None
+
+    def _declare_divergence(self, reason: str) -> None:
+        """Latch ERROR; roll the estimate back to the last good snapshot; stop the filter."""
+        self._diverged = reason
+        self.counters['divergences'] += 1
+        st = self._good[0] if self._good else None
+        self._last_good_state = st
+        lay = self.layout
+        if st is not None:
+            self._theta_g, self._theta_a = st.theta_gyro.copy(), st.theta_accel.copy()
+            self._rho, self._mount = st.lever_arm_imu_m.copy(), st.mounting_rotvec_rad.copy()
+        else:  # nothing good yet: back to the starting point
+            init = self._initial
+            self._theta_g = np.zeros(em.N_GYRO) if init is None else init.theta_gyro.copy()
+            self._theta_a = np.zeros(em.N_ACCEL) if init is None else init.theta_accel.copy()
+        self._errors = self._make_errors()
+        if self._filter is not None:
+            P = np.zeros((lay.n, lay.n))
+            s = lay.scale[6:]
+            if st is not None:
+                P[6:, 6:] = st.covariance / np.outer(s, s)
+            else:
+                P[6:, 6:] = np.diag((np.concatenate(
+                    [self._prior[g] for g in lay.groups]) / s) ** 2) if lay.groups else 0.0
+            P[0:6, 0:6] = np.eye(6)
+            self._filter.P = P
+            self._filter.x = np.zeros(lay.n)
+        n_buf = len(self._take_imu()[0])
+        if n_buf:
+            self._keep_imu_from(n_buf)
+        logging.getLogger('imu_calib_ros.estimator').error(
+            'calibration filter diverged (%s): estimate rolled back to the last good block',
+            reason)
+
+    def _status(self, now_ns: int | None) -> tuple[str, str]:
+        """('OK'|'WARN'|'ERROR'|'STALE', one-line message)."""
+        g = self._guard
+        cfg = self.guard_config
+        if self._diverged is not None:
+            return 'ERROR', f'filter diverged: {self._diverged}; use the last good calibration'
+        if g.units_error is not None:
+            return 'ERROR', g.units_error
+        if now_ns is not None and (g.last_kept_ns is None
+                                   or now_ns - g.last_kept_ns > cfg.stale_after_s * 1e9):
+            return 'STALE', 'no IMU samples accepted recently'
+        if g.rejected['joint_missing_names'] and self.counters['joint_samples'] == 0:
+            return 'WARN', ('joint states lack the fixture joints '
+                            f'{", ".join(self._joint_names)} (got '
+                            f'{", ".join(g.unknown_joint_names) or "none"})')
+        newest = g.last_stamp_ns
+        if g.last_event_ns is not None and newest is not None \
+                and newest - g.last_event_ns <= cfg.warn_hold_s * 1e9:
+            bad = {k: v for k, v in g.rejected.items() if v}
+            what = ', '.join(f'{k} {v}' for k, v in sorted(bad.items())) or 'none'
+            return 'WARN', f'bad input: rejected {what}; gaps {g.flagged["gap"]}'
+        return 'OK', 'ok'
+
+    def _last_good_result(self) -> Any:
+        """CalibrationResult of the last good snapshot (cached), or None."""
+        st = self._last_good_state if self._diverged is not None else (
+            self._good[-1] if self._good else None)
+        if st is None:
+            return None
+        if self._last_good_cache is None or self._last_good_cache[0] != id(st):
+            self._last_good_cache = (id(st), self._result_from_state(st))
+        return self._last_good_cache[1]
+
+    def _result_from_state(self, st: Estimate) -> Any:
+        """A snapshot as a CalibrationResult (the same assembly as :meth:`estimate`)."""
+        from ..calibration import CalibrationResult
+        sm = _sensor_model()
+        lay = self.layout
+        sig_g = np.zeros(em.N_GYRO)
+        sig_a = np.zeros(em.N_ACCEL)
+        for grp in em.GYRO_GROUPS:
+            sig_g[em.gyro_cols(grp)] = self._prior[grp]
+        for grp in em.ACCEL_GROUPS:
+            sig_a[em.accel_cols(grp)] = self._prior[grp]
+        sd = np.sqrt(np.clip(np.diag(st.covariance), 0.0, None))
+        for grp in lay.groups:
+            sl = slice(lay.slices[grp].start - 6, lay.slices[grp].stop - 6)
+            if grp in em.GYRO_GROUPS:
+                sig_g[em.gyro_cols(grp)] = sd[sl]
+            elif grp in em.ACCEL_GROUPS:
+                sig_a[em.accel_cols(grp)] = sd[sl]
+        errors = em.errors_from_theta(st.theta_gyro, st.theta_accel, sm.SensorErrors)
+        sigma = em.errors_from_theta(sig_g, sig_a, sm.SensorErrors)
+        fixed = tuple(k for k, gs in CONTRACT_KEYS.items()
+                      if not any(grp in lay.groups for grp in gs))
+        extra = {'estimator': {'last_good_snapshot': True,
+                               'lever_arm_imu_m': [float(v) for v in st.lever_arm_imu_m],
+                               'estimated_groups': list(lay.groups)}}
+        return CalibrationResult(errors=errors, sigma=sigma,
+                                 frame_id=self.guard_config.frame_id or 'imu_link',
+                                 fixed=fixed, extra=extra)
 
     # ------------------------------------------------------------------ alignment
     def _try_initialise(self) -> bool:
@@ -474,7 +782,7 @@ class CalibrationEstimator:
     def _trim_joints(self) -> None:
         if self._t_last_ns is None or len(self._jt) < 3:
             return
-        k = int(np.searchsorted(np.array(self._jt), self._t_last_ns)) - 2
+        k = bisect.bisect_left(self._jt, self._t_last_ns) - 2  # the list may hold a whole run
         if k > 0:
             del self._jt[:k]
             del self._jq[:k]
@@ -518,20 +826,20 @@ class CalibrationEstimator:
         # sensor Jacobians on the compensated samples
         Mg, Ma = em.compensated_jacobians(self._errors, w_c[:m], wd, f_c[:m], fd)
         om = self.fixture.site.omega_ie_enu
-        phi = chunk_transitions(lay, R_mid.reshape(B, n, 3, 3),
-                                nav.f_enu_m_s2.reshape(B, n, 3),
-                                Mg.reshape(B, n, 3, em.N_GYRO), Ma.reshape(B, n, 3, em.N_ACCEL),
-                                dt.reshape(B, n), om)
+        rows = chunk_transition_rows(lay, R_mid.reshape(B, n, 3, 3),
+                                     nav.f_enu_m_s2.reshape(B, n, 3),
+                                     Mg.reshape(B, n, 3, em.N_GYRO),
+                                     Ma.reshape(B, n, 3, em.N_ACCEL), dt.reshape(B, n), om)
         s = lay.scale
-        phi_s = phi * (s[None, None, :] / s[None, :, None])
+        rows_s = rows * (s[None, None, :] / s[None, 0:6, None])
         T = dt.reshape(B, n).sum(axis=1)
         # zero-velocity measurement with the lever arm, at each chunk end
         ends = np.arange(n - 1, m, n)
         R_end = nav.R_enu_imu[ends]
         w_end = 0.5 * (w_c[ends] + w_c[ends + 1])  # rate at the chunk-end instant
-        w_eb = w_end - np.einsum('bji,j->bi', R_end, om)
-        u = np.cross(w_eb, self._rho)
-        Ru = np.einsum('bij,bj->bi', R_end, u)
+        w_eb = w_end - om @ R_end  # R_end^T omega_ie per chunk end
+        u = w_eb @ skew(self._rho)  # omega_eb x rho (np.cross costs 10x on (B, 3))
+        Ru = (R_end @ u[:, :, None])[:, :, 0]
         z_v = (nav.v_enu_m_s[ends] - Ru) / MEAS_SCALE
         H_v = np.zeros((B, 3, lay.n))
         H_v[:, :, 3:6] = np.eye(3)
@@ -544,12 +852,16 @@ class CalibrationEstimator:
         z_a = H_a = None
         have_att = np.zeros(B, bool)
         if self.config.attitude_aiding and self._jt:
-            jt = np.array(self._jt, np.int64)
             te = t[ends]
-            have_att = (te >= jt[0]) & (te <= jt[-1])
+            have_att = (te >= self._jt[0]) & (te <= self._jt[-1])
             self.counters['attitude_updates_without_joints'] += int((~have_att).sum())
             if have_att.any():
-                jq = np.array(self._jq)
+                # only the joint samples around this block: the buffer may hold a whole run
+                te_in = te[have_att]
+                j0 = max(bisect.bisect_right(self._jt, int(te_in[0])) - 1, 0)
+                j1 = bisect.bisect_left(self._jt, int(te_in[-1])) + 1
+                jt = np.array(self._jt[j0:j1], np.int64)
+                jq = np.array(self._jq[j0:j1])
                 rel = (te - jt[0]).astype(float)
                 jrel = (jt - jt[0]).astype(float)
                 q_end = np.stack([np.interp(rel, jrel, jq[:, i]) for i in range(jq.shape[1])],
@@ -565,8 +877,9 @@ class CalibrationEstimator:
                 H_a *= s[None, None, :] / MEAS_SCALE
         R_a = np.eye(3) * (self.config.attitude_sigma_rad / MEAS_SCALE) ** 2
         filt = self._filter
+        q1_diag_s = np.diag(self._q1_s)
         for b in range(B):
-            filt.predict(phi_s[b], self._q1_s * T[b])
+            filt.predict_rows(rows_s[b], q1_diag_s * T[b])
             filt.update('velocity', z_v[b], H_v[b], R_v)
             if have_att[b]:
                 filt.update('attitude', z_a[b], H_a[b], R_a)  # type: ignore[index]

@@ -64,6 +64,11 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
     if q_min is None or float(np.max(q_max - q_min)) < 1e-2:
         raise InputError('no motion: the fixture joints did not move (less than 0.01 rad); '
                          'record a rotation plan')
+    health = est.health()
+    if health['status'] == 'ERROR':
+        # A diverged filter never becomes a calibration file (issue 6).
+        raise InputError(f'the estimator diverged ({health["message"]}); no calibration '
+                         'written: check the IMU grade, units and the fixture file')
     return est
 
 

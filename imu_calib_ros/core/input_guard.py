@@ -1,0 +1,408 @@
+"""Input guard: a small, fast, pure classifier of incoming IMU and joint samples (issue 6).
+
+Every sample is either accepted or rejected with exactly one reason, and every reason has a
+counter (STYLE 9: count, drop and report; never let a NaN into the filter). Rejected samples
+never reach the estimator's buffers, so they never touch the filter state.
+
+IMU reasons, in the order they are tested (the first that applies is counted):
+
+``duplicate_stamp``, ``out_of_order``, ``time_jump_backward``
+    stamp equal to / older than the newest stamp seen so far (``time_jump_backward`` when
+    older by more than ``time_jump_backward_s``: a looping bag or a ``use_sim_time`` jump);
+``frame_id``
+    ``header.frame_id`` other than the configured one (when one is configured);
+``non_finite``, ``all_zero``, ``saturated``
+    NaN/inf; all six values exactly zero (a dead driver); any axis at or beyond the
+    configured full-scale range;
+``accel_units_g``
+    specific force magnitude near 1 instead of near the site gravity: the accelerometers
+    report g, not m/s^2 (on a turntable the IMU reference point stays within centimetres of
+    the fixed axes, so ``|f| = g`` to within ``omega^2 r``, always "at rest" translationally);
+``accel_magnitude``
+    ``| |f| / g - 1 |`` above ``accel_magnitude_tolerance`` (not a turntable-mounted IMU
+    in m/s^2);
+``gyro_units_deg``
+    the gyro rate magnitude is ``180/pi`` times the rate magnitude derived from the joint
+    encoders (``|omega_ib| = |sum_i u_i qdot_i + Omega_ie|``, frame-free, so the mounting
+    does not matter): the gyros report deg/s. Once ``units_latch_count`` samples agree and
+    outnumber the consistent ones four to one, the guard latches :attr:`units_error` and
+    rejects every later IMU sample with this reason.
+
+Accepted samples may be *flagged* (counted in :attr:`InputGuard.flagged`, not rejected):
+``gap`` (interval > ``gap_periods`` nominal periods, CONTRACT 1's 1.5-period rule: the
+sample is the mean over its own nominal period) and ``long_gap`` (interval >
+``max_gap_s``: the estimator applies ``gap_policy``).
+
+Joint reasons: ``joint_missing_names`` (a message without all fixture joints),
+``joint_non_finite``, ``joint_duplicate_stamp``, ``joint_out_of_order``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+__all__ = ['GuardConfig', 'ImuVerdict', 'InputGuard', 'IMU_REASONS', 'JOINT_REASONS']
+
+IMU_REASONS = ('duplicate_stamp', 'out_of_order', 'time_jump_backward', 'frame_id', 'non_finite',
+               'all_zero', 'saturated', 'accel_units_g', 'accel_magnitude', 'gyro_units_deg',
+               'filter_diverged')
+JOINT_REASONS = ('joint_missing_names', 'joint_non_finite', 'joint_duplicate_stamp',
+                 'joint_out_of_order')
+RAD_PER_DEG = math.pi / 180.0
+EARTH_RATE_RAD_S = 7.2921151467e-5
+_LOG = logging.getLogger('imu_calib_ros.input')
+
+
+def _f(default: object, doc: str, lo: float | None = None, hi: float | None = None) -> Any:
+    meta: dict[str, object] = {'doc': doc}
+    if lo is not None:
+        meta['min'] = lo
+    if hi is not None:
+        meta['max'] = hi
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class GuardConfig:
+    """Limits for bad input, gaps and divergence (single source of defaults, STYLE 5).
+
+    Load from a mapping with :func:`imu_calib_ros.core.config.from_mapping` (strict keys).
+    """
+
+    frame_id: str = _f('', "expected IMU header.frame_id; '' accepts any")
+    gyro_saturation_rad_s: float = _f(34.906585, 'a sample with any |gyro axis| at or above '
+                                      'this is saturated (default 2000 deg/s)', 1e-3)
+    accel_saturation_m_s2: float = _f(156.9064, 'a sample with any |accel axis| at or above '
+                                      'this is saturated (default 16 g)', 1e-3)
+    accel_magnitude_tolerance: float = _f(0.5, 'reject |f| outside g (1 +- this); 0 disables',
+                                          0.0, 10.0)
+    units_min_rate_rad_s: float = _f(0.05, 'encoder rate above which gyro units are checked',
+                                     1e-4)
+    units_ratio_tolerance: float = _f(0.3, 'relative tolerance of the 180/pi (deg/s) and 1 '
+                                      '(g) signatures', 0.01, 0.9)
+    units_latch_count: int = _f(20, 'deg/s-signature samples before the units error latches',
+                                1, 100000)
+    time_jump_backward_s: float = _f(1.0, 'a stamp older than the newest by more than this '
+                                     'is a backward time jump (looping bag)', 0.0)
+    gap_periods: float = _f(1.5, 'an interval longer than this many nominal periods is a gap '
+                            '(CONTRACT 1)', 1.0)
+    max_gap_s: float = _f(1.0, 'a gap longer than this triggers gap_policy', 1e-3)
+    gap_policy: Literal['reinitialise', 'bridge'] = _f(
+        'reinitialise', "long gap: 'reinitialise' the navigation states at the next "
+        "stationary window keeping the calibration states and their covariance, or 'bridge' "
+        "with inflated covariance (only if the joints did not move across the gap; else "
+        "reinitialise)")
+    bridge_attitude_sigma_rad: float = _f(1e-4, 'attitude sigma added when bridging', 0.0)
+    bridge_velocity_sigma_m_s: float = _f(1e-4, 'velocity sigma added when bridging', 0.0)
+    nis_window: int = _f(50, 'measurement updates in the divergence window', 5, 100000)
+    max_rejected_fraction: float = _f(0.5, 'gate rejections in the window above this '
+                                      'fraction: diverged', 0.01, 1.0)
+    max_mean_nis_per_dof: float = _f(20.0, 'mean NIS per measurement dof in the window above '
+                                     'this: diverged', 1.0)
+    state_range_sigmas: float = _f(50.0, 'a calibration state beyond this many prior sigmas '
+                                   'has left its physical range: diverged', 3.0)
+    max_velocity_m_s: float = _f(1.0, 'navigated velocity above this: diverged (the IMU point '
+                                 'stays within centimetres of the axes)', 1e-3)
+    warn_hold_s: float = _f(10.0, 'health stays WARN this long (data time) after a rejection '
+                            'or gap', 0.0)
+    stale_after_s: float = _f(1.0, "health is STALE when no IMU sample was accepted for this "
+                              "long before health(now_ns)", 1e-3)
+    log_period_s: float = _f(5.0, 'at most one rejection log line per this period (wall)',
+                             0.0)
+
+
+@dataclass(frozen=True)
+class ImuVerdict:
+    """The outcome of :meth:`InputGuard.check_imu` for one batch."""
+
+    keep: NDArray[np.bool_]  # (N,) accepted samples
+    long_gaps: IntArray  # indices into the *accepted* samples that follow a long gap
+
+
+class InputGuard:
+    """Classify IMU and joint samples; count rejections by reason (see module docstring).
+
+    Parameters
+    ----------
+    config:
+        :class:`GuardConfig`.
+    gravity_m_s2:
+        Site gravity (``fixture.site.gravity``): the expected specific-force magnitude.
+    joint_names:
+        The fixture joints, in fixture order.
+    axes_enu:
+        ``q (..., n) -> (..., n, 3)`` joint axes in ENU (``Fixture.joint_axes_enu``) for the
+        encoder-derived rate; ``None`` disables the gyro units check.
+    """
+
+    def __init__(self, config: GuardConfig, gravity_m_s2: float, joint_names: tuple[str, ...],
+                 axes_enu: Callable[[FloatArray], FloatArray] | None = None) -> None:
+        self.config = config
+        self.gravity_m_s2 = float(gravity_m_s2)
+        self.joint_names = tuple(joint_names)
+        self._axes_enu = axes_enu
+        self.rejected: dict[str, int] = {r: 0 for r in IMU_REASONS + JOINT_REASONS}
+        self.flagged: dict[str, int] = {'gap': 0, 'long_gap': 0}
+        self.units_error: str | None = None
+        self.last_stamp_ns: int | None = None  # newest IMU stamp seen (accepted or not)
+        self.last_kept_ns: int | None = None  # newest accepted IMU stamp
+        self.last_event_ns: int | None = None  # data time of the newest rejection or gap
+        self.unknown_joint_names: tuple[str, ...] = ()
+        self._dts: list[int] = []  # first accepted intervals -> nominal period
+        self.nominal_period_ns: int | None = None
+        self._deg_votes = 0
+        self._ok_votes = 0
+        self._g_votes = 0
+        self._last_joint: tuple[int, FloatArray] | None = None
+        # accepted joint samples not yet turned into rates (done lazily, vectorised)
+        self._pend_t: deque[int] = deque(maxlen=8193)
+        self._pend_q: deque[FloatArray] = deque(maxlen=8193)
+        self._rate_t = np.zeros(0)  # joint interval mid stamps
+        self._rate_v = np.zeros(0)  # |omega_eb_enu| there (encoder-derived)
+        self._logged: dict[str, int] = {}
+        self._logged_total = 0
+        self._logged_units = False
+        self._log_wall = -math.inf
+
+    # ----------------------------------------------------------------------------- IMU
+    def check_imu(self, stamps_ns: IntArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray,
+                  frame_id: str = '', diverged: bool = False) -> ImuVerdict:
+        """Classify a batch (vectorised). Updates the counters and the stamp memory."""
+        cfg = self.config
+        t = np.asarray(stamps_ns, np.int64)
+        w = np.asarray(gyro_rad_s, float).reshape(-1, 3)
+        f = np.asarray(accel_m_s2, float).reshape(-1, 3)
+        n = len(t)
+        if n == 1 and not diverged and self.units_error is None:
+            fast = self._check_one(int(t[0]), w[0], f[0], frame_id)
+            if fast is not None:
+                return fast
+        reason = np.full(n, -1, np.int64)  # index into IMU_REASONS, -1 = accepted
+
+        def mark(mask: NDArray[np.bool_], name: str) -> None:
+            reason[(reason < 0) & mask] = IMU_REASONS.index(name)
+
+        first = np.iinfo(np.int64).min if self.last_stamp_ns is None else self.last_stamp_ns
+        prev_max = np.maximum.accumulate(np.concatenate([[first], t]))[:-1]
+        mark(t == prev_max, 'duplicate_stamp')
+        back = t < prev_max
+        # prev_max - t computed in float: prev_max may be int64 min
+        jump = back & ((prev_max.astype(float) - t) > cfg.time_jump_backward_s * 1e9)
+        mark(jump, 'time_jump_backward')
+        mark(back, 'out_of_order')
+        if cfg.frame_id and frame_id != cfg.frame_id:
+            mark(np.ones(n, bool), 'frame_id')
+        if diverged:
+            mark(np.ones(n, bool), 'filter_diverged')
+        finite = np.isfinite(w).all(axis=1) & np.isfinite(f).all(axis=1)
+        mark(~finite, 'non_finite')
+        with np.errstate(invalid='ignore'):
+            mark((w == 0).all(axis=1) & (f == 0).all(axis=1), 'all_zero')
+            mark((np.abs(w) >= cfg.gyro_saturation_rad_s).any(axis=1)
+                 | (np.abs(f) >= cfg.accel_saturation_m_s2).any(axis=1), 'saturated')
+            fmag = np.linalg.norm(f, axis=1)
+            g_units = np.abs(fmag - 1.0) < cfg.units_ratio_tolerance
+            open_ = reason < 0
+            self._g_votes += int((g_units & open_).sum())
+            mark(g_units, 'accel_units_g')
+            if cfg.accel_magnitude_tolerance > 0:
+                mark(np.abs(fmag / self.gravity_m_s2 - 1.0) > cfg.accel_magnitude_tolerance,
+                     'accel_magnitude')
+        if self._g_votes >= cfg.units_latch_count and self.units_error is None:
+            self.units_error = ('accelerometer values look like g, not m/s^2 (|f| ~ 1 instead '
+                                f'of {self.gravity_m_s2:.3f}): fix the driver units')
+        self._check_gyro_units(t, w, reason)
+        if self.units_error is not None and self.units_error.startswith('gyro'):
+            mark(np.ones(n, bool), 'gyro_units_deg')
+        keep = reason < 0
+        self.last_stamp_ns = int(max(first, int(t.max()))) if n else self.last_stamp_ns
+        if n and not keep.all():
+            counts = np.bincount(reason[~keep], minlength=len(IMU_REASONS))
+            for i in np.nonzero(counts)[0]:
+                self.rejected[IMU_REASONS[i]] += int(counts[i])
+            self.last_event_ns = int(np.maximum(t, prev_max)[~keep].max())
+        long_gaps = self._gaps(t[keep])
+        self._log()
+        return ImuVerdict(keep, long_gaps)
+
+    def _check_one(self, t: int, w: FloatArray, f: FloatArray,
+                   frame_id: str) -> ImuVerdict | None:
+        """Scalar fast path for the common single good sample (~10x faster than the arrays);
+        None: let the vectorised path classify it (any doubt, a gap, or motion)."""
+        cfg = self.config
+        last = self.last_stamp_ns
+        if last is not None and t <= last:
+            return None
+        if cfg.frame_id and frame_id != cfg.frame_id:
+            return None
+        wx, wy, wz = float(w[0]), float(w[1]), float(w[2])
+        fx, fy, fz = float(f[0]), float(f[1]), float(f[2])
+        wmax = max(abs(wx), abs(wy), abs(wz))
+        fmax = max(abs(fx), abs(fy), abs(fz))
+        if not (wmax < cfg.gyro_saturation_rad_s and 0.0 < fmax < cfg.accel_saturation_m_s2):
+            return None  # NaN, zero, saturated (NaN fails every comparison)
+        fmag = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if abs(fmag - 1.0) < cfg.units_ratio_tolerance or (
+                cfg.accel_magnitude_tolerance > 0
+                and abs(fmag / self.gravity_m_s2 - 1.0) > cfg.accel_magnitude_tolerance):
+            return None
+        if math.sqrt(wx * wx + wy * wy + wz * wz) > 0.5 * cfg.units_min_rate_rad_s \
+                and self._axes_enu is not None:
+            return None
+        lk = self.last_kept_ns
+        if lk is not None and (self.nominal_period_ns is None or t - lk > min(
+                cfg.gap_periods * self.nominal_period_ns, cfg.max_gap_s * 1e9)):
+            return None
+        self.last_stamp_ns = t
+        self.last_kept_ns = t
+        return ImuVerdict(np.ones(1, bool), np.zeros(0, np.int64))
+
+    def _gaps(self, kt: IntArray) -> IntArray:
+        """Flag gaps among the accepted stamps ``kt``; indices of the long ones."""
+        cfg = self.config
+        if not len(kt):
+            return np.zeros(0, np.int64)
+        prev = np.concatenate([[kt[0] if self.last_kept_ns is None else self.last_kept_ns],
+                               kt[:-1]])
+        dt = kt - prev
+        if self.last_kept_ns is None:
+            dt = dt[1:]
+            off = 1
+        else:
+            off = 0
+        self.last_kept_ns = int(kt[-1])
+        if self.nominal_period_ns is None:
+            self._dts.extend(int(x) for x in dt[:32 - len(self._dts)])
+            if len(self._dts) >= 8:
+                self.nominal_period_ns = int(np.median(self._dts))
+        long_ = np.nonzero(dt > cfg.max_gap_s * 1e9)[0] + off
+        if self.nominal_period_ns is not None:
+            is_gap = np.nonzero(dt > cfg.gap_periods * self.nominal_period_ns)[0]
+            if is_gap.size:
+                self.flagged['gap'] += int(is_gap.size)
+                self.last_event_ns = int(kt[is_gap[-1] + off])
+        if long_.size:
+            self.flagged['long_gap'] += int(long_.size)
+            self.last_event_ns = int(kt[long_[-1]])
+        return long_.astype(np.int64)
+
+    def _check_gyro_units(self, t: IntArray, w: FloatArray, reason: NDArray[np.int64]) -> None:
+        """Compare |gyro| with the encoder-derived rate magnitude (deg/s signature = 180/pi)."""
+        cfg = self.config
+        if self.units_error is not None or self._axes_enu is None:
+            return
+        wmag = np.linalg.norm(w, axis=1)
+        cand = (reason < 0) & (wmag > 0.5 * cfg.units_min_rate_rad_s)
+        if not cand.any():
+            return
+        self._update_rates()
+        rt, rv = self._rate_t, self._rate_v
+        if len(rt) < 2:
+            return
+        tc = t[cand].astype(float)
+        inside = (tc >= rt[0]) & (tc <= rt[-1])
+        if not inside.any():
+            return
+        enc = np.interp(tc[inside], rt, rv)
+        wm = wmag[cand][inside]
+        moving = enc > cfg.units_min_rate_rad_s
+        ratio = wm[moving] / enc[moving]
+        tol = cfg.units_ratio_tolerance
+        self._deg_votes += int((np.abs(ratio * RAD_PER_DEG - 1.0) < tol).sum())
+        self._ok_votes += int((np.abs(ratio - 1.0) < tol).sum())
+        if self._deg_votes >= cfg.units_latch_count and self._deg_votes > 4 * self._ok_votes:
+            self.units_error = ('gyro values look like deg/s, not rad/s (|gyro| is 57.3 times '
+                                'the encoder rate): fix the driver units')
+
+    # --------------------------------------------------------------------------- joints
+    def check_joint(self, stamp_ns: int, names: tuple[str, ...] | list[str],
+                    positions_rad: Any) -> FloatArray | None:
+        """The fixture-ordered positions of an accepted joint sample, or None (counted)."""
+        try:
+            idx = [list(names).index(n) for n in self.joint_names]
+        except ValueError:
+            self.unknown_joint_names = tuple(names)
+            return self._reject_joint('joint_missing_names')
+        q = np.asarray(positions_rad, float)
+        if q.ndim != 1 or q.shape[0] != len(names):
+            return self._reject_joint('joint_missing_names')
+        q = q[idx]
+        if not np.all(np.isfinite(q)):
+            return self._reject_joint('joint_non_finite')
+        if self._last_joint is not None:
+            t0, q0 = self._last_joint
+            if stamp_ns == t0:
+                return self._reject_joint('joint_duplicate_stamp')
+            if stamp_ns < t0:
+                return self._reject_joint('joint_out_of_order')
+        self._last_joint = (int(stamp_ns), q)
+        self._pend_t.append(int(stamp_ns))
+        self._pend_q.append(q)
+        return q
+
+    def _reject_joint(self, name: str) -> None:
+        self.rejected[name] += 1
+        self._log()
+        return None
+
+    def _update_rates(self) -> None:
+        """Encoder-derived rate magnitude over each joint interval (vectorised, lazily).
+
+        ``|omega_ib| = |sum_i u_i(q) qdot_i + Omega_ie|`` is frame-free; Omega_ie (7e-5 rad/s)
+        is far below ``units_min_rate_rad_s`` and left out.
+        """
+        if len(self._pend_t) < 2:
+            return
+        t = np.fromiter(self._pend_t, np.int64)
+        q = np.array(self._pend_q)
+        dq = np.diff(q, axis=0)
+        dq -= 2 * np.pi * np.round(dq / (2 * np.pi))  # wrapped encoders (CONTRACT 1)
+        qd = dq / (np.diff(t) * 1e-9)[:, None]
+        u = self._axes_enu(q[:-1] + 0.5 * dq)  # (M, n, 3) at the interval middles
+        rate = np.linalg.norm(np.einsum('mi,mij->mj', qd, u), axis=1)
+        mid = 0.5 * (t[:-1] + t[1:]).astype(float)
+        self._rate_t = np.concatenate([self._rate_t, mid])[-8192:]
+        self._rate_v = np.concatenate([self._rate_v, rate])[-8192:]
+        last_t, last_q = self._pend_t[-1], self._pend_q[-1]
+        self._pend_t.clear()
+        self._pend_q.clear()
+        self._pend_t.append(last_t)
+        self._pend_q.append(last_q)
+
+    # ---------------------------------------------------------------------------- misc
+    @property
+    def rejected_total(self) -> int:
+        """All rejected samples (IMU and joint)."""
+        return int(sum(self.rejected.values()))
+
+    def _log(self) -> None:
+        """One throttled log line with the counts that changed since the last one."""
+        if self.rejected_total == self._logged_total and (
+                self.units_error is None or self._logged_units):
+            return
+        now = time.monotonic()
+        if now - self._log_wall < self.config.log_period_s:
+            return
+        new = {k: v - self._logged.get(k, 0) for k, v in self.rejected.items()
+               if v != self._logged.get(k, 0)}
+        if not new and self.units_error is None:
+            return
+        self._log_wall = now
+        self._logged = dict(self.rejected)
+        self._logged_total = self.rejected_total
+        self._logged_units = self.units_error is not None
+        if new:
+            _LOG.warning('rejected input samples: %s',
+                         ', '.join(f'{k} {v}' for k, v in sorted(new.items())))
+        if self.units_error is not None:
+            _LOG.error('%s', self.units_error)

@@ -1,0 +1,122 @@
+"""core.input_guard: each reason counted, gaps flagged, units detected, single == batch."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imu_calib_ros.core.fixture import load_fixture
+from imu_calib_ros.core.input_guard import IMU_REASONS, GuardConfig, InputGuard
+
+FX = load_fixture('three_axis')
+G = FX.site.gravity
+DT = 5_000_000  # 200 Hz
+
+
+def guard(**kw) -> InputGuard:
+    return InputGuard(GuardConfig(**kw), G, FX.joint_names, FX.joint_axes_enu)
+
+
+def clean(n: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t = 10**18 + np.arange(1, n + 1, dtype=np.int64) * DT
+    w = np.tile([1e-5, 2e-5, 7e-5], (n, 1))
+    f = np.tile([0.0, 0.0, G], (n, 1))
+    return t, w, f
+
+
+def test_clean_data_is_all_accepted_and_single_equals_batch() -> None:
+    t, w, f = clean()
+    a = guard()
+    assert a.check_imu(t, w, f).keep.all() and a.rejected_total == 0
+    b = guard()
+    assert all(b.check_imu(t[i:i + 1], w[i:i + 1], f[i:i + 1]).keep[0] for i in range(len(t)))
+    assert a.nominal_period_ns == b.nominal_period_ns == DT
+
+
+@pytest.mark.parametrize('single', [False, True])
+def test_each_reason_counted_once(single: bool) -> None:
+    t, w, f = clean()
+    w[10] = np.inf
+    w[20], f[20] = 0.0, 0.0
+    f[30, 0] = 200.0
+    f[40] = [0.0, 0.0, 1.0]
+    f[50] = [0.0, 0.0, 2.0]
+    t[60] = t[59]
+    t[70] = t[68] + 1
+    t[80] = t[79] - 3 * 10**9
+    g = guard(frame_id='imu_link')
+    if single:
+        keep = np.array([g.check_imu(t[i:i + 1], w[i:i + 1], f[i:i + 1], 'imu_link').keep[0]
+                         for i in range(len(t))])
+    else:
+        keep = g.check_imu(t, w, f, 'imu_link').keep
+    assert list(np.nonzero(~keep)[0]) == [10, 20, 30, 40, 50, 60, 70, 80]
+    expect = {'non_finite': 1, 'all_zero': 1, 'saturated': 1, 'accel_units_g': 1,
+              'accel_magnitude': 1, 'duplicate_stamp': 1, 'out_of_order': 1,
+              'time_jump_backward': 1}
+    assert {k: v for k, v in g.rejected.items() if v} == expect
+    assert g.check_imu(t[-1:] + DT, w[:1], f[:1], 'other').keep.sum() == 0
+    assert g.rejected['frame_id'] == 1
+
+
+def test_gaps_flagged_by_the_one_and_a_half_period_rule() -> None:
+    t, w, f = clean(100)
+    t[50:] += int(0.4 * DT)  # 1.4 periods: not a gap
+    t[70:] += int(0.6 * DT)  # 1.6 periods: a gap
+    t[90:] += 2 * 10**9  # a long gap
+    g = guard(max_gap_s=1.0)
+    v = g.check_imu(t, w, f)
+    assert v.keep.all()
+    assert g.flagged == {'gap': 2, 'long_gap': 1} and list(v.long_gaps) == [90]
+
+
+def spin(rate_rad_s: float, n_joint: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """Outer (vertical) joint spinning at a constant rate, joints at 100 Hz."""
+    tj = 10**18 + np.arange(n_joint, dtype=np.int64) * 10_000_000
+    q = np.zeros((n_joint, 3))
+    q[:, 0] = rate_rad_s * (tj - tj[0]) * 1e-9
+    return tj, q
+
+
+@pytest.mark.parametrize('deg', [False, True])
+def test_gyro_units_from_encoder_rate(deg: bool) -> None:
+    tj, q = spin(0.5)
+    g = guard()
+    for ti, qi in zip(tj, q):
+        assert g.check_joint(int(ti), FX.joint_names, qi) is not None
+    t = 10**18 + 50_000_000 + np.arange(200, dtype=np.int64) * DT
+    w = np.tile(FX.joint_axes_enu(np.zeros(3))[0] * 0.5, (200, 1))  # |w| = 0.5 rad/s
+    if deg:
+        w = np.degrees(w)
+    f = np.tile([0.0, 0.0, G], (200, 1))
+    v = g.check_imu(t, w, f)
+    if deg:
+        assert g.units_error is not None and 'deg/s' in g.units_error
+        assert g.rejected['gyro_units_deg'] == 200 and not v.keep.any()
+    else:
+        assert g.units_error is None and v.keep.all() and g._ok_votes == 200  # noqa: SLF001
+
+
+def test_accel_in_g_latches() -> None:
+    t, w, f = clean(50)
+    g = guard(units_latch_count=20)
+    assert not g.check_imu(t, w, f / G).keep.any()
+    assert g.units_error is not None and 'not m/s^2' in g.units_error
+
+
+def test_joint_reasons() -> None:
+    g = guard()
+    names = FX.joint_names
+    assert g.check_joint(10, ('x', 'y'), np.zeros(2)) is None
+    assert g.check_joint(10, names, np.array([0.0, np.nan, 0.0])) is None
+    q = g.check_joint(10, tuple(reversed(names)) + ('extra',), np.array([3.0, 2.0, 1.0, 9.0]))
+    np.testing.assert_array_equal(q, [1.0, 2.0, 3.0])  # reordered to the fixture's order
+    assert g.check_joint(10, names, np.zeros(3)) is None
+    assert g.check_joint(5, names, np.zeros(3)) is None
+    assert {k: v for k, v in g.rejected.items() if v} == {
+        'joint_missing_names': 1, 'joint_non_finite': 1, 'joint_duplicate_stamp': 1,
+        'joint_out_of_order': 1}
+    assert g.unknown_joint_names == ('x', 'y')
+
+
+def test_reason_names_are_stable() -> None:
+    assert len(set(IMU_REASONS)) == len(IMU_REASONS)
