@@ -3,8 +3,8 @@
     python bench/bench_speed.py [--minutes 60] [--rate 200] [--batch 4000] [--no-joints]
                                 [--tracemalloc]
 
-Simulates the ``demo_short`` plan (closed into a loop) once (nav grade, three-axis fixture) and replays it again
-and again with shifted stamps until ``minutes`` of data have gone through
+Simulates the ``demo_short`` plan, closed into a loop, once (nav grade, three-axis fixture)
+and replays it again and again with shifted stamps until ``minutes`` of data have gone through
 ``CalibrationEstimator`` with every group estimated (46 states incl. the time offset): per
 repetition the joint states (``push_joint_batch``, as a bag replay delivers them) and the IMU
 samples in ``batch``-sample batches (``push_imu_batch``). Not a test: it prints figures.
@@ -46,16 +46,17 @@ def rss_mb() -> float:
         with open('/proc/self/statm') as fh:
             return int(fh.read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 1e6
     except OSError:
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6
 
 
-def covariance_health(P: np.ndarray) -> tuple[float, float, float, float]:
-    """(min eigenvalue of P, of its correlation matrix, max |P - P^T|, max |P|) (scaled P)."""
+def covariance_health(P: np.ndarray) -> tuple[float, float, float, float, float]:
+    """(min eigenvalue of P, of its correlation matrix, max |P - P^T|, max |P|, condition
+    number of P) for the scaled P."""
     d = np.sqrt(np.diag(P))
     corr = P / np.outer(d, d)
-    return (float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()),
-            float(np.linalg.eigvalsh(0.5 * (corr + corr.T)).min()),
-            float(np.abs(P - P.T).max()), float(np.abs(P).max()))
+    ev = np.linalg.eigvalsh(0.5 * (P + P.T))
+    return (float(ev.min()), float(np.linalg.eigvalsh(0.5 * (corr + corr.T)).min()),
+            float(np.abs(P - P.T).max()), float(np.abs(P).max()), float(ev.max() / ev.min()))
 
 
 def loop_plan() -> Any:
@@ -112,7 +113,7 @@ def main() -> None:
     prof = build_profile(loop_plan(), fx)
     sim = simulate(fx, prof, grade, SimConfig(imu_rate_hz=a.rate, seed=0))
     reps = max(1, int(np.ceil(a.minutes * 60 / prof.duration_s)))
-    health: list[tuple[float, float, float, float]] = []
+    health: list[tuple[float, float, float, float, float]] = []
     rss: list[float] = []
 
     def on_rep(r: int, est: CalibrationEstimator) -> None:
@@ -141,10 +142,11 @@ def main() -> None:
     mn_corr = min(x[1] for x in health)
     asym = max(x[2] for x in health)
     rel_asym = max(x[2] / x[3] for x in health)
+    cond = max(x[4] for x in health)
     print(f'states            {est.layout.n} ({", ".join(est.layout.groups)})')
+    when = 'once' if a.no_joints else 'every repetition'
     print(f'data              {data_s / 60:.1f} min at {a.rate:g} Hz = {total} IMU samples '
-          f'({reps} x {prof.duration_s:.0f} s), joints {"every repetition" if not a.no_joints else "once"}'
-          f', batches of {a.batch}')
+          f'({reps} x {prof.duration_s:.0f} s), joints {when}, batches of {a.batch}')
     print(f'cpu time          {cpu:.2f} s (wall {wall:.2f} s on a shared machine)')
     print(f'1 h at 200 Hz     {hour_s:.1f} s cpu  (target <= 20 s)')
     print(f'samples/s         {total / cpu:,.0f} cpu, {total / wall:,.0f} wall  '
@@ -152,11 +154,12 @@ def main() -> None:
     print(f'real-time factor  {data_s / cpu:.0f}x  (target >= 180x)')
     print(f'memory            RSS {rss[0]:.0f} MB after repetition 1, {rss[-1]:.0f} MB at the '
           f'end (growth {rss[-1] - rss[0]:+.1f} MB over {reps - 1} repetitions); peak RSS '
-          f'{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB (incl. the '
+          f'{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6:.0f} MB (incl. the '
           'simulated data)')
     print(f'covariance        over {len(health)} checks: min eigenvalue of scaled P {mn_eig:.3g},'
-          f' of its correlation matrix {mn_corr:.3g} (> 0: positive definite); max |P - P^T| '
-          f'{asym:.2g} (relative {rel_asym:.1g})')
+          f' of its correlation matrix {mn_corr:.3g} (> 0: positive definite), condition '
+          f'number <= {cond:.2g}; max |P - P^T| {asym:.2g} (relative {rel_asym:.1g}; P is '
+          'symmetrised after every update)')
     print(f'filter            gate accepted {h.get("gate_accepted", h.get("accepted"))}, '
           f'rejected {h.get("gate_rejected")}; mean NIS {h.get("mean_nis")}')
     if a.tracemalloc:

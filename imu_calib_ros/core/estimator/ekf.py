@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from filterpy.kalman import predict as kf_predict
 from numpy.typing import NDArray
 from scipy.linalg.lapack import dpotrf as _potrf
 from scipy.linalg.lapack import dpotrs as _potrs
@@ -174,6 +173,9 @@ class ErrorStateFilter:
 
     def predict(self, phi_s: FloatArray, q_s: FloatArray) -> None:
         """Propagate ``x`` and ``P`` over one chunk with a full ``Phi`` (filterpy ``predict``)."""
+        # imported here: filterpy.kalman imports matplotlib (~1 s at CLI start-up), and the
+        # estimator itself only uses predict_rows
+        from filterpy.kalman import predict as kf_predict
         self.x, self.P = kf_predict(self.x, self.P, phi_s, q_s)
 
     def predict_rows(self, phi_rows_s: FloatArray, q_diag_s: FloatArray) -> None:

@@ -9,9 +9,10 @@ between two measurement updates, and chunks in *blocks* of ``config.block_chunks
    METHODS.md "cuts across", so one sample of look-ahead is kept);
 2. ``Strapdown.propagate`` over the whole block (vectorised);
 3. build every chunk's transition matrix by vectorised sums (:mod:`.ekf`);
-4. per chunk: one filterpy ``predict`` and one gated Joseph-form ``update`` with the
-   lever-arm zero-velocity measurement ``v_enu = R_enu_imu (omega_eb_imu x rho)`` (and, with
-   encoder aiding, the attitude from the fixture kinematics with the mounting rotation);
+4. per chunk: one block-form ``predict`` and one gated Joseph-form ``update`` (:mod:`.ekf`)
+   with the lever-arm zero-velocity measurement ``v_enu = R_enu_imu (omega_eb_imu x rho)``
+   (and, with encoder aiding, the attitude from the fixture kinematics with the mounting
+   rotation);
 5. feed the error state back at the block end (navigator correction, new compensation).
 
 Inside a block the error state is carried (not fed back), which is exact for a linear model
