@@ -95,8 +95,10 @@ def test_any_sequence_set_rank():
 
 def test_recovers_simulated_truth():
     """Nav-grade IMU on Savage's fixture, all 17 sequences (6 s windows, 100 Hz): every
-    estimated parameter within 5 sigma of the truth (sigma from measured noise; the
-    unmodelled accelerometer quadratic term, ~5 ug at 1 g, is the largest bias source),
+    estimated parameter within 3 sigma of the truth. Sigma = measured white noise + the
+    accelerometer bias instability (row covariance) + the consider covariance of the fixed
+    quadratic term (~5 ug at 1 g, otherwise absorbed by aa and ba) and size effect; over
+    seeds 1-9 RMS(err/sigma) = 1.00, max 2.6 (270 values), so 3 sigma is honest for one seed,
     and sigmas at the sub-ppm / urad level the noise predicts (Savage sect. 9 scaled:
     0.002 deg/rt(h) over ~15 s -> ~2 urad -> ~0.3 ppm on 2 pi g)."""
     from imu_calib_ros.core.fixture import load_fixture
@@ -118,8 +120,12 @@ def test_recovers_simulated_truth():
                 'accel_bias_m_s2', 'accel_scale_misalignment', 'accel_scale_asymmetry'):
         e = np.asarray(getattr(errs, fld)) - np.asarray(getattr(sim.truth.errors, fld))
         s = np.asarray(getattr(sig, fld))
-        assert np.all(np.abs(e) < 5 * s), (fld, e / s)
+        assert np.all(np.abs(e) < 3 * s), (fld, e / s)
     assert np.all(np.asarray(sig.gyro_scale_misalignment) < 1e-6)
-    assert np.all(np.asarray(sig.accel_bias_m_s2) < 2e-5)  # ~1-2 ug
+    # accel bias: the run-mean bias differs from the turn-on constant by the bias
+    # instability (Gauss-Markov, 2 ug), plus ~1-1.5 ug from noise and the fixed terms
+    s_ba = np.asarray(sig.accel_bias_m_s2)
+    assert np.all(s_ba >= grade.accel_bias_instability_m_s2)
+    assert np.all(s_ba < np.hypot(grade.accel_bias_instability_m_s2, 1.5e-5))
     # re-play converged (sect. 8): last correction negligible
     assert extra['srt']['iterations'][-1]['max_abs_correction'] < 1e-9

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import Any
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -21,12 +22,41 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.set_defaults(func=run)
 
 
+def levelled_attitude(R_enu_imu_nominal: Any, f_imu_m_s2: Any) -> Any:
+    """Nominal attitude tilted so that the measured mean specific force points up (ENU).
+
+    Coarse alignment as the estimator's: at rest the specific force is ``+g`` up, so the
+    smallest rotation taking ``R f / |f|`` onto ``(0, 0, 1)`` removes the mounting tilt
+    (~1 mrad, which at 1 g alone gives ~1 cm/s^2 of navigated acceleration); the heading
+    stays the fixture's (accelerometers do not see it).
+    """
+    import numpy as np
+
+    from ..core.rotation import rotvec_to_matrix
+    up = R_enu_imu_nominal @ np.asarray(f_imu_m_s2, float)
+    up = up / np.linalg.norm(up)
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    s, c = np.linalg.norm(axis), float(up[2])
+    rv = axis / s * np.arctan2(s, c) if s > 0 else np.zeros(3)
+    return rotvec_to_matrix(rv) @ R_enu_imu_nominal
+
+
 def _nav_velocity(args: argparse.Namespace, calib):  # noqa: ANN001, ANN202
+    """Navigated velocity error over the bag with the calibration applied.
+
+    Starts at rest at the first stationary window, with the EKF's mounting rotation if the
+    file has one (the heading part: ~1 mrad of heading error turns into a tilt at the earth
+    rate, ~0.15 m/s after 800 s on a nav-grade unit), levelled on its accelerometers; the
+    IMU point's own velocity (``omega_eb x rho``, the estimator's lever arm if the file has
+    one, else the fixture's nominal offset) is subtracted; the size effect is compensated
+    (``compensate`` with omega_dot from the stamps). What is left is what the calibration
+    leaves (plus the heading error, which the accelerometers cannot level).
+    """
     import numpy as np
 
     from ..core.errors import InputError
     from ..core.fixture import load_fixture
-    from ..core.methods.windows import joints_at
+    from ..core.methods.windows import joints_at, stationary_windows
     from ..core.sensor_model import compensate
     from ..core.strapdown import Strapdown
     from ..msg_adapters.bag import read_bag
@@ -35,13 +65,31 @@ def _nav_velocity(args: argparse.Namespace, calib):  # noqa: ANN001, ANN202
     fx = load_fixture(args.fixture)
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
     w, f = compensate(calib.errors, imu.gyro_rad_s, imu.accel_m_s2, stamps_ns=imu.stamps_ns)
-    q0 = joints_at(imu.stamps_ns[:1], joints, fx.joint_names)[0]
-    t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
+    wins = stationary_windows(imu, joints, fx, min_duration_s=2.0)
+    if not wins:
+        raise InputError(f'{args.bag}: no stationary window to start the navigation from')
+    w0 = wins[0]
+    est = (calib.extra or {}).get('estimator', {})
+    R_w0 = fx.R_enu_imu(w0.q_rad)
+    if 'mounting_rotvec_rad' in est:  # the EKF's mounting: R_enu_imu = R_fixture exp(m)
+        from ..core.rotation import rotvec_to_matrix
+        R_w0 = R_w0 @ rotvec_to_matrix(np.asarray(est['mounting_rotvec_rad'], float))
+    R0 = levelled_attitude(R_w0, np.mean(f[w0.i0:w0.i1], axis=0))
+    i0 = w0.i0
+    t = (imu.stamps_ns[i0:] - imu.stamps_ns[0]) * 1e-9
     dt = np.diff(t, prepend=t[0] - float(np.median(np.diff(t))))
-    nav = Strapdown(fx.site, fx.R_enu_imu(q0)).propagate(dt, w, f)
+    nav = Strapdown(fx.site, R0).propagate(dt, w[i0:], f[i0:])
+    # the IMU point's own velocity on the fixture: omega_eb x (R rho), rho in the IMU frame
+    q = joints_at(imu.stamps_ns[i0:], joints, fx.joint_names)
+    qd = np.gradient(q, t, axis=0)
+    kin = fx.kinematics(q, qd, np.gradient(qd, t, axis=0))
+    if 'lever_arm_imu_m' in est:
+        rho = np.asarray(est['lever_arm_imu_m'], float)
+        v_point = np.cross(kin.omega_eb_enu_rad_s, kin.R_enu_imu @ rho)
+    else:
+        v_point = kin.v_enu_m_s
     step = max(1, len(t) // 3000)
-    # the IMU point stays within millimetres of the axes: navigated velocity = its error
-    return t[::step], nav.v_enu_m_s[::step]
+    return t[::step], (nav.v_enu_m_s - v_point)[::step]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -17,16 +17,50 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
-#: (SensorErrors field, label, factor to engineering units, unit)
+#: (SensorErrors field, label, factor to engineering units, unit, CONTRACT 4 key)
 ROWS = (
-    ('gyro_bias_rad_s', 'gyro bias', 180 / np.pi * 3600, 'deg/h'),
-    ('gyro_scale_misalignment', 'gyro Kg', 1e6, 'ppm/urad'),
-    ('gyro_scale_asymmetry', 'gyro asym', 1e6, 'ppm'),
-    ('accel_bias_m_s2', 'accel bias', 1e6 / 9.80665, 'ug'),
-    ('accel_scale_misalignment', 'accel Ka', 1e6, 'ppm/urad'),
-    ('accel_scale_asymmetry', 'accel asym', 1e6, 'ppm'),
-    ('size_effect_m', 'size effect', 1e3, 'mm'),
+    ('gyro_bias_rad_s', 'gyro bias', 180 / np.pi * 3600, 'deg/h', 'gyroscope.bias'),
+    ('gyro_scale_misalignment', 'gyro Kg', 1e6, 'ppm/urad', 'gyroscope.scale_misalignment'),
+    ('gyro_scale_asymmetry', 'gyro asym', 1e6, 'ppm', 'gyroscope.scale_asymmetry'),
+    ('gyro_g_sensitivity_rad_s_per_m_s2', 'gyro G', 180 / np.pi * 3600 * 9.80665, 'deg/h/g',
+     'gyroscope.g_sensitivity'),
+    ('accel_bias_m_s2', 'accel bias', 1e6 / 9.80665, 'ug', 'accelerometer.bias'),
+    ('accel_scale_misalignment', 'accel Ka', 1e6, 'ppm/urad',
+     'accelerometer.scale_misalignment'),
+    ('accel_scale_asymmetry', 'accel asym', 1e6, 'ppm', 'accelerometer.scale_asymmetry'),
+    ('accel_quadratic_per_m_s2', 'accel quad', 9.80665e6, 'ug/g^2', 'accelerometer.quadratic'),
+    ('size_effect_m', 'size effect', 1e3, 'mm', 'accelerometer.size_effect'),
 )
+
+
+def _srt_not_estimated(res: Any) -> set[tuple[str, tuple[int, ...]]] | None:
+    """Entry-level (field, index) pairs an SRT result held fixed, or None if not an SRT file.
+
+    CONTRACT 4's ``fixed`` lists whole keys: one unexcited entry (e.g. ``ba_x``) puts all of
+    ``accelerometer.bias`` there, while the SRT's ``extra.srt.not_estimated`` names entries.
+    """
+    names = (getattr(res, 'extra', None) or {}).get('srt', {}).get('not_estimated')
+    if names is None:
+        return None
+    from ..core.methods.srt import CONSIDER, PARAMS
+    out = {(fld, tuple(idx)) for n, fld, idx in PARAMS if n in names}
+    out |= {(fld, tuple(idx)) for _, fld, idx, _ in CONSIDER}
+    for n, fld, idx in PARAMS:  # Kg is symmetric: both halves
+        if n in names and fld == 'gyro_scale_misalignment':
+            out.add((fld, tuple(idx[::-1])))
+    return out
+
+
+def is_fixed(res: Any, fld: str, key: str, idx: tuple[int, ...]) -> bool:
+    """True when ``res`` held this entry at its prior (not estimated from the data)."""
+    entries = _srt_not_estimated(res)
+    if entries is not None and key not in ('gyroscope.bias',):
+        return (fld, tuple(idx)) in entries
+    return key in tuple(getattr(res, 'fixed', ()))
+
+
+#: micro-g per m/s^2 (standard gravity)
+UG_PER_M_S2 = 1e6 / 9.80665
 
 
 def _png(fig: Any) -> str:
@@ -40,7 +74,7 @@ def _png(fig: Any) -> str:
 def _entries(fld: str) -> list[tuple[int, ...]]:
     if fld in ('gyro_scale_misalignment',):
         return [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
-    if fld in ('accel_scale_misalignment',):
+    if fld in ('accel_scale_misalignment', 'gyro_g_sensitivity_rad_s_per_m_s2'):
         return [(i, j) for i in range(3) for j in range(3)]
     if fld == 'size_effect_m':
         return [(i, j) for i in range(3) for j in range(3) if i != j]
@@ -48,7 +82,12 @@ def _entries(fld: str) -> list[tuple[int, ...]]:
 
 
 def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> str:
-    """Side-by-side table: value, sigma and (with truth) error and error/sigma per method."""
+    """Side-by-side table: value, sigma and (with truth) error and error/sigma per method.
+
+    An entry a method held fixed shows ``fixed`` in its error columns (its sigma is the
+    prior's, so err/sigma against it says nothing about the method); only estimated
+    entries with ``|err/sigma| > 3`` are highlighted.
+    """
     head = '<tr><th>parameter</th><th>unit</th>'
     if truth is not None:
         head += '<th>truth</th>'
@@ -56,7 +95,7 @@ def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> s
         head += (f'<th>{html.escape(name)}</th><th>&sigma;</th>'
                  + ('<th>err</th><th>err/&sigma;</th>' if truth is not None else ''))
     rows = [head + '</tr>']
-    for fld, label, k, unit in ROWS:
+    for fld, label, k, unit, key in ROWS:
         for idx in _entries(fld):
             tag = label + '[' + ','.join('xyz'[i] for i in idx) + ']'
             r = f'<tr><td>{tag}</td><td>{unit}</td>'
@@ -67,13 +106,17 @@ def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> s
             for _, res in results:
                 v = float(np.asarray(getattr(res.errors, fld))[idx]) * k
                 s = float(np.asarray(getattr(res.sigma, fld))[idx]) * k
-                key = {'gyro_bias_rad_s': 'gyroscope.bias'}.get(fld, '')
-                fixed = key in res.fixed if key else False
-                r += f'<td>{v:.4g}{" (fixed)" if fixed else ""}</td><td>{s:.3g}</td>'
-                if tv is not None:
-                    z = (v - tv) / s if s > 0 else float('nan')
-                    cls = ' class="bad"' if np.isfinite(z) and abs(z) > 3 else ''
-                    r += f'<td>{v - tv:.3g}</td><td{cls}>{z:.2f}</td>'
+                fixed = is_fixed(res, fld, key, idx)
+                cell = ' class="fixed"' if fixed else ''
+                r += f'<td{cell}>{v:.4g}</td><td{cell}>{s:.3g}</td>'
+                if tv is None:
+                    continue
+                if fixed:
+                    r += '<td class="fixed" colspan="2">fixed</td>'
+                    continue
+                z = (v - tv) / s if s > 0 else float('nan')
+                cls = ' class="bad"' if np.isfinite(z) and abs(z) > 3 else ''
+                r += f'<td>{v - tv:.3g}</td><td{cls}>{z:.2f}</td>'
             rows.append(r + '</tr>')
     return '<table>' + '\n'.join(rows) + '</table>'
 
@@ -88,17 +131,20 @@ def srt_plot(extra: dict[str, Any]) -> str | None:
         for row, m, r, sg in zip(s['rows'], s['delta_a_h_m_s2'], s['residual_m_s2'],
                                  s['sigma_m_s2']):
             labels.append(row)
-            meas.append(m * 1e6 / 9.80665)
-            res.append(r * 1e6 / 9.80665)
-            sig.append(sg * 1e6 / 9.80665)
+            meas.append(m * UG_PER_M_S2)
+            res.append(r * UG_PER_M_S2)
+            sig.append(sg * UG_PER_M_S2)
     fig, ax = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
     x = np.arange(len(labels))
     ax[0].bar(x, meas)
     ax[0].set_ylabel('Delta a_H [ug]')
-    ax[0].set_title('SRT horizontal acceleration change per sequence (start-frame, eq. 1)')
+    ax[0].set_title('SRT horizontal acceleration change per sequence (start-frame, eq. 1), '
+                    'as measured before the SRT correction')
     ax[1].errorbar(x, res, yerr=3 * np.array(sig), fmt='o', ms=3)
     ax[1].axhline(0, color='k', lw=0.5)
-    ax[1].set_ylabel('residual [ug] (3 sigma bars)')
+    ax[1].set_ylabel('residual after fit [ug]\n(3 sigma bars)')
+    for a in ax:  # ug values, not a matplotlib offset/scale factor hiding the unit
+        a.ticklabel_format(axis='y', style='plain', useOffset=False)
     ax[1].set_xticks(x, labels, rotation=90, fontsize=6)
     return _png(fig)
 
@@ -182,12 +228,15 @@ def build_report(calib: Any, truth: Any | None = None,
         ax.set_xlabel('t [s]')
         ax.set_ylabel('navigated velocity error [m/s]')
         ax.legend(['E', 'N', 'U'])
+        ax.set_title('from rest at the first stationary window, levelled on its '
+                     'accelerometers; lever-arm velocity removed', fontsize=8)
         sections.append(('Navigated velocity over the bag (calibration applied)', _png(fig), ''))
     for head, img, note in sections:
         parts.append(f'<h2>{html.escape(head)}</h2>')
         parts.append(img if img else f'<p class="note">{html.escape(note)}</p>')
     style = ('<style>body{font-family:sans-serif}table{border-collapse:collapse;font-size:11px}'
              'td,th{border:1px solid #ccc;padding:2px 4px}.bad{background:#fcc}'
+             '.fixed{color:#888;font-style:italic}'
              '.note{color:#777}</style>')
     return ('<!DOCTYPE html><html><head><meta charset="utf-8"><title>'
             + html.escape(title) + '</title>' + style + '</head><body>'

@@ -4,15 +4,16 @@ Seed ``004`` (rotation modulation of a MEMS IMU on a platform turning about its 
 Frames: ``s`` = IMU (sensor) frame; ``b`` = platform-base ("body") frame, defined as the IMU
 frame when the modulation joint is at zero (the platform base; control points at joint
 angles that are multiples of 360/n deg). With ``u`` the joint axis in the IMU frame
-(constant) and ``phi = q``: ``R_b_s = Rot(u, phi)`` (one convention, tested; the paper's eqs. 5-6 mix C_S^B and C_B^S).
+(constant) and ``phi = q``: ``R_b_s = Rot(u, phi)`` (one convention, tested; the paper's
+eqs. 5-6 mix C_S^B and C_B^S).
 
 - :func:`demodulate_points` (paper eqs. 12-14): the X/Y (perpendicular to ``u``) error
   estimate is the mean of the raw sensor-frame output over the last complete revolution,
   weighted by angle (eq. 12); at each control point (every 360/n deg, n = 1, 2, 4) one
   body-frame sample is output: the raw sample at the control point minus that estimate,
   rotated with the control point's exactly known ``R_b_s`` (eq. 13/14), and the platform
-  rate (mean over the last interval, from the joint) removed from the gyro. Output rate =
-  n times the rotation frequency (the paper's limitation).
+  rate (mean over that sample's interval, from the joint angles) removed from the gyro.
+  Output rate = n times the rotation frequency (the paper's limitation).
 - :func:`demodulate_continuous` (METHODS.md sect. 3): every sample is de-rotated with the
   joint angle, and the modulated biases are tracked at full rate as the angle-weighted mean
   of the sensor-frame output over one revolution around (offline) or before (causal) each
@@ -167,20 +168,19 @@ def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str
     # raw samples whose interval contains a control point (angle = multiple of the step)
     k0 = np.floor(sgn * phi0 / step)
     k1 = np.floor(sgn * phi1 / step)
-    idx = np.flatnonzero((k1 > k0) & (sgn * (phi1 - phi0[0]) >= 2 * np.pi))
-    if idx.size < 2:
+    cross = np.flatnonzero(k1 > k0)
+    out = sgn * (phi1[cross] - phi0[0]) >= 2 * np.pi  # outputs after the first revolution
+    if out.sum() < 2:
         raise InputError('fewer than two control points after the first revolution')
+    idx = cross[out]
     cp = sgn * k1[idx] * step  # the control point's angle (exact R_b_s there: eq. 14)
+    # platform rate: mean over the crossing sample's interval from the joint angles (the
+    # gyro's own averaging interval). The paper's step / time between crossings assumes a
+    # constant rate: after a spin-up the first output was off by ~50 deg/s (one-point mode)
+    rate = (phi1[idx] - phi0[idx]) / (_intervals_ns(imu.stamps_ns)[idx] * 1e-9)
     bg = _revolution_mean(gyro, phi0, phi1, cp, True) @ P
     ba = _revolution_mean(accel, phi0, phi1, cp, True) @ P
     t = imu.stamps_ns[idx]
-    # platform rate = control-point step / time between crossings (the paper's "indirect
-    # estimate from the rotation period"); crossing times interpolated inside the sample
-    dt = _intervals_ns(imu.stamps_ns)
-    frac = (cp - phi0[idx]) / (phi1[idx] - phi0[idx])
-    t_cross = ((t - imu.stamps_ns[0]) - dt[idx] * (1.0 - frac)) * 1e-9  # relative: float64
-    rate = np.diff(cp) / np.diff(t_cross)
-    rate = np.concatenate([[rate[0]], rate])
     R = rot_axis_angle(u, cp)
     w_b = np.einsum('nij,nj->ni', R, gyro[idx] - bg - rate[:, None] * u)
     f_b = np.einsum('nij,nj->ni', R, accel[idx] - ba)
@@ -204,8 +204,7 @@ class StreamingDemodulator:
     after its stamp has arrived (the joint angle at both ends of its interval is then
     interpolated, as offline); output starts after the first complete revolution (the bias
     is the angle-weighted mean over the preceding revolution, eq. 12). After that its values
-    equal the offline causal ones (test_node_modulation.py), except the first point-mode
-    output's platform rate, which uses the crossing before it.
+    equal the offline causal ones (test_node_modulation.py).
 
     Parameters
     ----------
@@ -216,10 +215,14 @@ class StreamingDemodulator:
     mode : {'continuous', 'one', 'two', 'four'}
     max_pending : int
         IMU samples kept while waiting for joint states; older ones are dropped (counted).
+    max_history : int
+        Cap on the accumulated samples (the history is trimmed to the last 1.5 revolutions
+        by angle; the cap only bounds a long stop). Must exceed twice the samples in one
+        revolution (200 000: 1 kHz down to 3.6 deg/s).
     """
 
     def __init__(self, axis_imu: Any, joint_name: str, mode: str = 'continuous',
-                 max_pending: int = 2000) -> None:
+                 max_pending: int = 2000, max_history: int = 200_000) -> None:
         if mode != 'continuous' and mode not in MODES:
             raise InputError(f'mode must be continuous, one, two or four, got {mode!r}')
         u = np.asarray(axis_imu, float).reshape(3)
@@ -229,16 +232,17 @@ class StreamingDemodulator:
         self.mode = mode
         self._step = None if mode == 'continuous' else 2 * np.pi / MODES[mode]
         self.max_pending = int(max_pending)
+        self.max_history = int(max_history)
         self._tj: list[int] = []
         self._qj: list[float] = []
         self._pending: list[Any] = []
         self._last_stamp: int | None = None
+        self._first: Any = None
         self._dt_nom_ns: float | None = None
         self._edges: list[float] = []  # raw joint angle at each accumulated sample's end
         self._cw: list[float] = [0.0]  # cumulative angle
         self._cx: list[FloatArray] = [np.zeros(6)]  # cumulative angle-weighted gyro, accel
         self._first_angle: float | None = None
-        self._last_cross: tuple[float, float] | None = None  # (angle, time s)
         self._t_base_ns: int | None = None
         self.counters = {'imu_in': 0, 'joint_in': 0, 'published': 0, 'warming_up': 0,
                          'dropped_no_joint_states': 0, 'out_of_order': 0, 'gaps': 0}
@@ -269,11 +273,15 @@ class StreamingDemodulator:
             self.counters['out_of_order'] += 1
             return []
         if self._last_stamp is None:
-            self._last_stamp = int(sample.stamp_ns)  # interval unknown: sets the clock only
+            self._last_stamp = int(sample.stamp_ns)  # interval unknown until the next one
+            self._first = sample
             return []
         dt = int(sample.stamp_ns) - self._last_stamp
         if self._dt_nom_ns is None:
             self._dt_nom_ns = float(dt)
+            # the first sample gets the first interval (offline: the median interval)
+            self._pending.append((self._first, dt))
+            self._first = None
         elif dt > 1.5 * self._dt_nom_ns:  # CONTRACT 1: after a gap, its own period only
             self.counters['gaps'] += 1
             dt = int(round(self._dt_nom_ns))
@@ -289,9 +297,8 @@ class StreamingDemodulator:
         out = []
         while self._pending and self._tj and self._tj[-1] >= self._pending[0][0].stamp_ns:
             s, dt = self._pending.pop(0)
-            if self._tj[0] > s.stamp_ns - dt:
-                self.counters['warming_up'] += 1  # no joint state before its interval
-                continue
+            # an interval starting before the first joint state takes its first angle
+            # (np.interp clamps, as offline): a zero or partial angle weight
             r = self._process(s, dt)
             if r is not None:
                 out.append(r)
@@ -328,9 +335,15 @@ class StreamingDemodulator:
         self._edges.append(phi1)
         self._cw.append(self._cw[-1] + w)
         self._cx.append(self._cx[-1] + np.concatenate([gyro, accel]) * w)
-        keep = 4 * int(2 * np.pi / max(abs(w), 1e-9)) + 16
-        if len(self._edges) > 2 * keep:  # older than a few revolutions: not needed
-            del self._edges[:-keep], self._cw[:-keep], self._cx[:-keep]
+        # bounded history: only the last revolution is ever read; trim by angle (a count
+        # derived from the current step grew without bound while the platform stood still)
+        # and cap the count (a long stop between spins adds samples but no angle)
+        if len(self._edges) > 64 and abs(phi1 - self._edges[len(self._edges) // 2]) > 3 * np.pi:
+            half = len(self._edges) // 2
+            del self._edges[:half], self._cw[:half], self._cx[:half]
+        elif len(self._edges) > self.max_history:
+            del self._edges[:-self.max_history // 2], self._cw[:-self.max_history // 2]
+            del self._cx[:-self.max_history // 2]
         sgn = 1.0 if w >= 0 else -1.0
         full = sgn * (phi1 - self._first_angle) >= 2 * np.pi
         if self._step is None:
@@ -351,14 +364,11 @@ class StreamingDemodulator:
         if k1 <= k0:
             return None
         cp = float(sgn * k1 * self._step)
-        frac = (cp - phi0) / (phi1 - phi0)
-        t_cross = t1 - dt_ns * 1e-9 * (1.0 - frac)
-        prev, self._last_cross = self._last_cross, (cp, t_cross)
-        if not full or prev is None or prev[1] >= t_cross:
+        if not full:
             self.counters['warming_up'] += 1
             return None
         b = self._revolution_mean(cp, sgn)
-        rate = (cp - prev[0]) / (t_cross - prev[1])
+        rate = w / (dt_ns * 1e-9)  # as offline: joint-angle rate over the sample interval
         R = rot_axis_angle(self.u, np.array(cp))
         w_b = R @ (gyro - b[:3] @ self._P - rate * self.u)
         f_b = R @ (accel - b[3:] @ self._P)

@@ -15,7 +15,9 @@ P. G. Savage, "Improved strapdown IMU calibration procedures", IEEE/ION PLANS 20
    error is added to the compensated stream), so any sequence set works and Table 2's
    ``H_k`` (2 pi g, 4 g, 2 g) comes out of the code (see :func:`design_sensitivities`);
 5. weighted least squares with rank detection (QR with column pivoting): parameters the
-   sequence set does not excite are fixed (CONTRACT 4) and reported;
+   sequence set does not excite are fixed (CONTRACT 4) and reported; the sigmas are the
+   noise covariance plus the consider covariance of everything held fixed (G, qa, size
+   effect, unexcited parameters) at its assumed (grade) sigma, :func:`consider_covariance`;
 6. iterate by re-playing the recording with the updated compensation (sect. 8).
 
 Frames: Savage's B is the IMU frame, so ``Delta a_H`` components are the same in his
@@ -278,7 +280,8 @@ def _sequence_dcms(geo: _Geometry, omega: FloatArray, k: int) -> FloatArray:
 def measurements(geo: _Geometry, omega: FloatArray, f: FloatArray,
                  dcms: list[FloatArray] | None = None) -> tuple[FloatArray, list[FloatArray]]:
     """Measurement vector: per sequence the horizontal change (2 rows), per window the down
-    component ``u_dwn . <f> + g`` (Savage eq. 1), in m/s^2. Returns ``(y, dcms)``."""
+    component ``u_dwn . <f> + g`` (Savage eq. 1) as ``g - |<f>|``, in m/s^2. Returns
+    ``(y, dcms)``."""
     if dcms is None:
         dcms = [_sequence_dcms(geo, omega, k) for k in range(len(geo.sequences))]
     rows = []
@@ -290,8 +293,11 @@ def measurements(geo: _Geometry, omega: FloatArray, f: FloatArray,
         a_end = np.einsum('nij,nj->i', C[s.end.i0 - a:], f[s.end.i0:s.end.i1]) / (
             s.end.i1 - s.end.i0)
         rows.extend(geo.horizontal_basis(k) @ (a_end - a_start))
-    for w, win in enumerate(geo.windows):
-        rows.append(geo.down(w) @ f[win.i0:win.i1].mean(axis=0) + geo.g_m_s2)
+    for win in geo.windows:
+        # Savage's down component u_dwn . <f> + g, taken as g - |<f>| (equal to first order
+        # with f along -u_dwn): the nominal u_dwn misses the mounting tilt, whose cosine
+        # (1 - theta^2 / 2, ~5e-7 at 1 mrad) was absorbed by the accel scale factors
+        rows.append(geo.g_m_s2 - np.linalg.norm(f[win.i0:win.i1].mean(axis=0)))
     return np.array(rows), dcms
 
 
@@ -329,6 +335,36 @@ def measurement_sigmas(geo: _Geometry, gyro_noise_rad_s_rt_hz: float,
         sig += [np.sqrt(var)] * 2
     sig += [accel_noise_m_s2_rt_hz / np.sqrt(w.duration_s) for w in geo.windows]
     return np.array(sig)
+
+
+def drift_covariance(geo: _Geometry, accel_bias_instability_m_s2: float,
+                     accel_bias_correlation_s: float) -> FloatArray:
+    """Row covariance from a Gauss-Markov accelerometer bias (bias instability).
+
+    The bias' deviation ``d(t)`` from its mean (the mean is what ``ba`` estimates) enters a
+    down row as ``u_dwn . d(t_w)`` and a horizontal change as ``E (C_end d(t_e) - d(t_s))``
+    with ``C_end = R_imu_enu(start) R_enu_imu(end)`` the nominal start-frame attitude at the
+    end window (eq. 2 at rest). Per axis ``E[d(t_i) d(t_j)] = s^2 exp(-|t_i - t_j| / tau)``
+    (first-order Gauss-Markov, the simulator's and the grade's model); each window is taken
+    at its mid-time (windows of seconds against tau of an hour). Returns ``(rows, rows)``
+    in (m/s^2)^2; zero when ``s`` is zero.
+    """
+    n_rows = 2 * len(geo.sequences) + len(geo.windows)
+    if accel_bias_instability_m_s2 <= 0 or accel_bias_correlation_s <= 0:
+        return np.zeros((n_rows, n_rows))
+    W = len(geo.windows)
+    t_mid = np.array([0.5 * (w.t0_s + w.t1_s) for w in geo.windows])
+    K = accel_bias_instability_m_s2 ** 2 * np.exp(
+        -np.abs(t_mid[:, None] - t_mid[None, :]) / accel_bias_correlation_s)
+    M = np.zeros((n_rows, 3 * W))
+    for k, (ws, we) in enumerate(geo.seq_window_idx):
+        E = geo.horizontal_basis(k)
+        C_end = geo.R_enu_imu_windows[ws].T @ geo.R_enu_imu_windows[we]
+        M[2 * k:2 * k + 2, 3 * we:3 * we + 3] += E @ C_end
+        M[2 * k:2 * k + 2, 3 * ws:3 * ws + 3] -= E
+    for w in range(W):
+        M[2 * len(geo.sequences) + w, 3 * w:3 * w + 3] = geo.down(w)
+    return M @ np.kron(K, np.eye(3)) @ M.T
 
 
 def noise_densities(stamps_ns: NDArray[np.int64], gyro: FloatArray, accel: FloatArray,
@@ -387,6 +423,89 @@ def solve(J: FloatArray, y: FloatArray, sigma: FloatArray, rtol: float = 1e-2) -
     cov = np.zeros((J.shape[1], J.shape[1]))
     cov[np.ix_(est, est)] = np.linalg.inv(A.T @ A) * scale
     return LsqResult(x, cov, est, r, chi2, dof)
+
+
+# ----------------------------------------------------------------------------- consider
+#: Parameters the SRT never estimates (CONTRACT 3 terms outside its linear model): (label,
+#: SensorErrors field, index, finite-difference step). G's step moves the rate by ~1e-6 rad/s
+#: (as Kg's); qa and r enter the specific force linearly, so their steps are exact.
+CONSIDER: tuple[tuple[str, str, tuple[int, int] | tuple[int], float], ...] = (
+    *((f'G_{a}{b}', 'gyro_g_sensitivity_rad_s_per_m_s2', (i, j), 1e-7)
+      for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
+    *((f'qa_{a}', 'accel_quadratic_per_m_s2', (i,), 1e-6) for i, a in enumerate(AXES)),
+    *((f'r_{a}{b}', 'size_effect_m', (i, j), 1e-3)
+      for i, a in enumerate(AXES) for j, b in enumerate(AXES) if i != j),
+)
+
+
+def _window_mean(x: FloatArray, windows: Sequence[Window]) -> FloatArray:
+    """Duration-weighted mean over the windows (the weights of :func:`gyro_bias_from_windows`)."""
+    durs = np.array([w.duration_s for w in windows])
+    means = np.array([x[w.i0:w.i1].mean(axis=0) for w in windows])
+    return (durs / durs.sum()) @ means
+
+
+def consider_sensitivities(geo: _Geometry, omega: FloatArray, f: FloatArray,
+                           ) -> tuple[FloatArray, FloatArray]:
+    """How the rows and the window gyro bias move with the parameters held fixed.
+
+    Each :data:`CONSIDER` term is added to the compensated stream (CONTRACT 3 forward
+    model: ``G f`` on the gyros, ``qa f^2`` and Kozlov eq. 1's size effect on the
+    accelerometers); a gyro change also moves the window gyro bias (Savage 9.4), which is
+    subtracted before the rows are formed, as in :func:`estimate`.
+
+    Returns
+    -------
+    J_f : (rows, len(CONSIDER))
+        ``d y / d x_f`` [m/s^2 per unit].
+    B_f : (3, len(CONSIDER))
+        ``d b_g / d x_f``, the window gyro bias [rad/s per unit].
+    """
+    from ..sensor_model import mean_rate_derivative, size_effect_term
+    y0, dcms = measurements(geo, omega, f)
+    omega_dot = mean_rate_derivative(geo.stamps_ns, omega)
+    J_f = np.zeros((y0.size, len(CONSIDER)))
+    B_f = np.zeros((3, len(CONSIDER)))
+    for j, (_, fld, idx, eps) in enumerate(CONSIDER):
+        if fld == 'gyro_g_sensitivity_rad_s_per_m_s2':
+            dw = np.zeros_like(omega)
+            dw[:, idx[0]] = eps * f[:, idx[1]]
+            db = _window_mean(dw, geo.windows)
+            y1, _ = measurements(geo, omega + dw - db, f)
+            B_f[:, j] = db / eps
+        else:
+            if fld == 'accel_quadratic_per_m_s2':
+                df = np.zeros_like(f)
+                df[:, idx[0]] = eps * f[:, idx[0]] ** 2
+            else:
+                r = np.zeros((3, 3))
+                r[idx] = eps
+                df = size_effect_term(r, omega, omega_dot)
+            y1, _ = measurements(geo, omega, f + df, dcms)
+        J_f[:, j] = (y1 - y0) / eps
+    return J_f, B_f
+
+
+def consider_covariance(J: FloatArray, sigma_y: FloatArray, estimated: NDArray[np.bool_],
+                        J_f: FloatArray, sigma_f: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Consider covariance of the estimated parameters (Schmidt; e.g. Bierman 1977, ch. 6).
+
+    The weighted LS estimate ``x = (A^T W A)^-1 A^T W y`` absorbs whatever the fixed
+    parameters ``x_f`` put into ``y = A x + J_f x_f + n``: ``S = -(A^T W A)^-1 A^T W J_f``,
+    and ``P_consider = S diag(sigma_f^2) S^T`` adds to the noise covariance.
+
+    Returns
+    -------
+    P_c : (P, P)
+        Consider part (zero rows/columns for parameters not estimated).
+    S : (P, F)
+        Sensitivity of the estimate to the fixed parameters.
+    """
+    A = J[:, estimated] / sigma_y[:, None]
+    Jf_w = J_f / sigma_y[:, None]
+    S = np.zeros((J.shape[1], J_f.shape[1]))
+    S[estimated] = -np.linalg.solve(A.T @ A, A.T @ Jf_w)
+    return (S * sigma_f ** 2) @ S.T, S
 
 
 # ----------------------------------------------------------------------------- design tool
@@ -555,7 +674,8 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         Nominal fixture (site, joints, nominal IMU mounting).
     grade : ImuGrade, optional
         Gives the assumed sigmas of the parameters the SRT does not estimate; the noise
-        used for the sigmas is always measured from the stationary windows.
+        used for the sigmas is always measured from the stationary windows; its accelerometer
+        bias instability and correlation time give the rows' drift covariance.
     iterations : int
         Re-plays with the updated compensation (Savage sect. 8); 2-3 suffice.
     initial : CalibrationResult, optional
@@ -591,6 +711,13 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     geo = _Geometry(imu.stamps_ns, seqs, list(windows), R_w, g, w_ie)
     ng, na = noise_densities(imu.stamps_ns, gyro_raw, accel_raw, windows)
     sig_y = measurement_sigmas(geo, ng, na)
+    R_y = np.diag(sig_y ** 2) + drift_covariance(
+        geo, float(getattr(grade, 'accel_bias_instability_m_s2', 0.0) or 0.0),
+        float(getattr(grade, 'accel_bias_correlation_s', 0.0) or 0.0))
+    L_y = np.linalg.cholesky(R_y)
+
+    def whiten(a: FloatArray) -> FloatArray:
+        return scipy.linalg.solve_triangular(L_y, a, lower=True)
     assumed = _grade_sigmas(grade)
     cur = _fields(initial.errors) if initial is not None else _fields(SensorErrors.zeros())
     history = []
@@ -604,21 +731,37 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         omega = omega - db
         y, _ = measurements(geo, omega, f)
         J = sensitivities(geo, omega, f)
-        sol = solve(J, y, sig_y, rtol)
+        # generalised LS with the bias-instability row covariance: whiten by its Cholesky
+        # factor, then the weighted solver with unit sigmas
+        sol = solve(whiten(J), whiten(y), np.ones(y.size), rtol)
+        residual = y - J @ sol.x
+        if it == 0:
+            y_first = y  # as measured with the initial compensation (the report plots it)
         for fld, val in _errors_from_vector(sol.x).items():
             cur[fld] = cur[fld] + val
         history.append({'iteration': it, 'max_abs_correction': float(np.max(np.abs(sol.x))),
                         'gyro_bias_correction_rad_s': db.tolist(),
                         'chi2': sol.chi2, 'dof': sol.dof,
-                        'rms_residual_m_s2': float(np.sqrt(np.mean(sol.residual ** 2)))})
+                        'rms_residual_m_s2': float(np.sqrt(np.mean(residual ** 2)))})
     sig = {k: v.copy() for k, v in assumed.items()}
     if initial is not None:
         sig = _fields(initial.sigma)
-    sd = np.sqrt(np.diag(sol.cov))
+    # consider covariance: what is held fixed but not zero in truth (G, qa, size effect,
+    # and any parameter the sequence set does not excite) biases the estimate; its assumed
+    # sigma goes into the estimated parameters' sigma (P += S P_f S^T)
+    J_f, B_f = consider_sensitivities(geo, omega, f)
+    sig_f = np.array([sig[fld][idx] for _, fld, idx, _ in CONSIDER])
+    not_exc = ~sol.estimated
+    J_all = np.concatenate([J_f, J[:, not_exc]], axis=1)
+    sig_all = np.concatenate([sig_f, [sig[PARAMS[j][1]][PARAMS[j][2]]
+                                      for j in np.flatnonzero(not_exc)]])
+    P_c, S = consider_covariance(whiten(J), np.ones(y.size), sol.estimated, whiten(J_all),
+                                 sig_all)
+    sd = np.sqrt(np.diag(sol.cov + P_c))
     for fld, val in _errors_from_vector(sd).items():
         mask = _errors_from_vector(sol.estimated.astype(float))[fld] > 0
         sig[fld][mask] = val[mask]
-    sig['gyro_bias_rad_s'] = sig_bg
+    sig['gyro_bias_rad_s'] = np.sqrt(sig_bg ** 2 + (B_f ** 2) @ sig_f ** 2)
     fixed = ['gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect']
     not_est = [n for n, e in zip(PARAM_NAMES, sol.estimated) if not e]
     for fld, key in FIELD_KEYS.items():
@@ -635,20 +778,25 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
             'start_window_s': [s.start.t0_s, s.start.t1_s],
             'end_window_s': [s.end.t0_s, s.end.t1_s],
             'rows': [row_names[r] for r in rows],
-            'delta_a_h_m_s2': [float(y[r]) for r in rows],
-            'residual_m_s2': [float(sol.residual[r]) for r in rows],
+            'delta_a_h_m_s2': [float(y_first[r]) for r in rows],
+            'delta_a_h_final_m_s2': [float(y[r]) for r in rows],
+            'residual_m_s2': [float(residual[r]) for r in rows],
             'sigma_m_s2': [float(sig_y[r]) for r in rows],
             'sensitivity': {row_names[r]: {PARAM_NAMES[j]: float(J[r, j])
                                            for j in range(J.shape[1])
                                            if abs(J[r, j]) > 1e-3 * g}
                             for r in rows},
         })
-    windows_info = [{'t_s': [w.t0_s, w.t1_s], 'down_m_s2_plus_g': float(y[n_h + i]),
-                     'residual_m_s2': float(sol.residual[n_h + i])}
+    windows_info = [{'t_s': [w.t0_s, w.t1_s], 'down_m_s2_plus_g': float(y_first[n_h + i]),
+                     'residual_m_s2': float(residual[n_h + i])}
                     for i, w in enumerate(windows)]
     extra = {'method': 'srt',
              'srt': {'sequences': seq_info, 'windows': windows_info,
                      'not_estimated': not_est, 'iterations': history,
                      'noise': {'gyro_rad_s_rt_hz': ng, 'accel_m_s2_rt_hz': na},
+                     'sigma_noise_only': {PARAM_NAMES[j]: float(np.sqrt(sol.cov[j, j]))
+                                          for j in np.flatnonzero(sol.estimated)},
+                     'consider': {'parameters': [c[0] for c in CONSIDER],
+                                  'assumed_sigma': sig_f.tolist()},
                      'gravity_m_s2': g}}
     return SensorErrors(**cur), SensorErrors(**sig), fixed, extra
