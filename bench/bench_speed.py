@@ -2,6 +2,7 @@
 
     python bench/bench_speed.py [--minutes 60] [--rate 200] [--batch 4000] [--no-joints]
                                 [--tracemalloc]
+    python bench/bench_speed.py --bag [--minutes 60] [--rate 200] [--passes 1,2]
 
 Simulates the ``demo_short`` plan, closed into a loop, once (nav grade, three-axis fixture)
 and replays it again and again with shifted stamps until ``minutes`` of data have gone through
@@ -16,15 +17,26 @@ repetition and at the end (must not grow with the length of the data) and the pe
 repetitions (tracemalloc slows numpy-heavy code ~3x: never time with it on).
 Covariance health (issue 3 item 4): at the end of every repetition the minimum eigenvalue of
 the scaled ``P`` and of its correlation matrix and the largest asymmetry ``|P - P^T|``.
+
+``--bag`` (end to end, issue 3 item 7 as a user meets it): the same repeated data written
+once to an mcap bag (cached in ``/tmp``, keyed by minutes and rate) and replayed from the bag
+the way ``imu-calib replay`` does it: first one pass of ``replay.replay`` over
+``iter_bag(bag)``, then the CLI itself (``imu-calib replay BAG ... --quiet``) with its default
+passes, both with every group estimated (incl. the time offset). Prints CPU and wall time,
+samples/s, RSS sampled during the replay (after 10 % of the bag and at the end: it must not
+grow with the bag's length), the peak RSS of the process, and a SUMMARY line per run against
+the 20 s target.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import os
+import tempfile
 import resource
 import time
 import tracemalloc
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -35,7 +47,7 @@ from imu_calib_ros.core.imu_grade import load_grade
 from imu_calib_ros.core.config import load_yaml, resolve_config_file
 from imu_calib_ros.core.plans import build_profile, plan_from_dict
 from imu_calib_ros.core.simulator import SimConfig, simulate
-from imu_calib_ros.core.types import ImuBatch
+from imu_calib_ros.core.types import ImuBatch, JointBatch
 
 TARGET_SAMPLES_S = 36_000.0  # issue 3 item 7: 1 h of 200 Hz in <= 20 s
 
@@ -98,6 +110,115 @@ def replay(sim: Any, fx: Any, grade: Any, reps: int, batch: int, joints: bool,
     return est, total
 
 
+def write_hour_bag(sim: Any, reps: int, path: Path) -> None:
+    """Write ``reps`` stamp-shifted copies of the simulated data to one mcap bag, repetition
+    by repetition (bounded memory; the same stream ``replay`` pushes in the default mode)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from imu_calib_ros.msg_adapters import bag as bagmod
+    from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
+                                                    ImuCovariances, joint_state_msg_from_sample)
+    store = bagmod._typestore()  # noqa: SLF001 - the bag module's own packers (same owner)
+    imu, jb = sim.imu, sim.joints
+    n = len(imu)
+    period = int(imu.stamps_ns[1] - imu.stamps_ns[0])
+    tmp = path.with_name(path.name + f'.partial-{os.getpid()}')
+    with tempfile.TemporaryDirectory(dir=path.parent) as d:
+        bagdir = Path(d) / path.stem
+        w = Writer(bagdir, version=9, storage_plugin=StoragePlugin.MCAP)
+        w.open()
+        c_imu = w.add_connection('/imu/data_raw', IMU_MSGTYPE, typestore=store)
+        c_j = w.add_connection('/joint_states', JOINT_STATE_MSGTYPE, typestore=store)
+        for r in range(reps):
+            off = r * n * period
+            j0 = 1 if r else 0
+            ib = ImuBatch(imu.stamps_ns + off, imu.gyro_rad_s, imu.accel_m_s2, 'imu_link')
+            jr = JointBatch(jb.stamps_ns[j0:] + off, jb.names, jb.positions_rad[j0:],
+                            None if jb.velocities_rad_s is None else jb.velocities_rad_s[j0:])
+            rows = bagmod._pack_imu(ib, 'imu_link', ImuCovariances.unknown())  # noqa: SLF001
+            jraw = [store.serialize_cdr(joint_state_msg_from_sample(x, store),
+                                        JOINT_STATE_MSGTYPE) for x in jr]
+            st = np.concatenate([jr.stamps_ns, ib.stamps_ns])  # joints first on equal stamps
+            for k in np.argsort(st, kind='stable').tolist():
+                if k < len(jr):
+                    w.write(c_j, int(st[k]), jraw[k])
+                else:
+                    w.write(c_imu, int(st[k]), rows[k - len(jr)].tobytes())
+        w.close()
+        os.rename(next(bagdir.glob('*.mcap')), tmp)
+    os.rename(tmp, path)
+
+
+def bench_bag(a: Any, fx: Any, grade: Any, sim: Any, reps: int) -> None:
+    """End-to-end mode (``--bag``): replay from an mcap bag, one pass and the CLI default."""
+    from imu_calib_ros.cli import main as cli_main
+    from imu_calib_ros.core.estimator.replay import replay as replay_bag
+    from imu_calib_ros.msg_adapters.bag import iter_bag
+    path = Path(tempfile.gettempdir()) / f'imu_calib_bench_{a.minutes:g}min_{a.rate:g}hz.mcap'
+    if not path.exists():
+        t = time.perf_counter()
+        write_hour_bag(sim, reps, path)
+        print(f'wrote {path} ({path.stat().st_size / 1e6:.0f} MB) in '
+              f'{time.perf_counter() - t:.0f} s (cached for later runs)')
+    else:
+        print(f'using cached {path} ({path.stat().st_size / 1e6:.0f} MB)')
+    n_total = reps * len(sim.imu)
+    data_s = n_total / a.rate
+    cfg = EstimatorConfig(estimate_time_offset=True)
+    rss: list[tuple[int, float]] = []
+    seen = 0
+
+    def progress(k: int) -> None:
+        nonlocal seen
+        seen += k
+        if not rss or seen - rss[-1][0] >= n_total // 20:
+            rss.append((seen, rss_mb()))
+
+    results = []
+    for passes in [int(x) for x in a.passes.split(',')]:
+        rss.clear()
+        seen = 0
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        if passes == 1:
+            est = replay_bag(lambda: iter_bag(path), fx, grade, cfg, 1, progress=progress)
+            what = 'replay.replay(iter_bag(bag)), 1 pass'
+        else:
+            yaml = Path(tempfile.gettempdir()) / 'imu_calib_bench_estimator.yaml'
+            yaml.write_text('estimate_time_offset: true\n')
+            out = Path(tempfile.gettempdir()) / 'imu_calib_bench_calib.yaml'
+            rc = cli_main(['replay', str(path), '--fixture', 'three_axis', '--imu', 'nav_grade',
+                           '--config', str(yaml), '--output', str(out), '--quiet',
+                           '--iterations', str(passes)])
+            assert rc == 0, rc
+            est = None
+            what = f'imu-calib replay --iterations {passes} (CLI, in process)'
+        cpu = time.process_time() - cpu0
+        wall = time.perf_counter() - wall0
+        hour = cpu * 3600.0 / data_s * (a.rate / 200.0)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6
+        print(f'--- {what}')
+        print(f'data              {data_s / 60:.1f} min at {a.rate:g} Hz = {n_total} IMU samples '
+              f'x {passes} pass(es), from {path.name}')
+        print(f'cpu time          {cpu:.2f} s (wall {wall:.2f} s on a shared machine)')
+        print(f'samples/s         {n_total / cpu:,.0f} cpu, {n_total / wall:,.0f} wall '
+              f'(bag samples per second of the whole run; target >= {TARGET_SAMPLES_S:,.0f})')
+        if rss:
+            i10 = min(range(len(rss)), key=lambda i: abs(rss[i][0] - n_total // 10))
+            print(f'memory            RSS {rss[i10][1]:.0f} MB after {rss[i10][0]} samples, '
+                  f'{rss[-1][1]:.0f} MB at {rss[-1][0]} (growth {rss[-1][1] - rss[i10][1]:+.1f}'
+                  f' MB); peak RSS of the process {peak:.0f} MB')
+        else:
+            print(f'memory            peak RSS of the process {peak:.0f} MB')
+        if est is not None:
+            h = est.health()
+            print(f'filter            gate accepted {h.get("gate_accepted")}, rejected '
+                  f'{h.get("gate_rejected")}, status {h["status"]}')
+        results.append((passes, hour, cpu, wall))
+        print(f'SUMMARY {"PASS" if hour <= 20.0 else "FAIL"}: end to end from a bag, {passes} '
+              f'pass(es): 1 h of 200 Hz in {hour:.1f} s cpu (target <= 20 s), '
+              f'{n_total / cpu:,.0f} bag IMU samples/s cpu ({n_total * passes / cpu:,.0f} '
+              f'pushed), wall {wall:.1f} s')
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--minutes', type=float, default=60.0, help='length of data to replay')
@@ -107,12 +228,21 @@ def main() -> None:
                     help='push the joint states only once (IMU path alone)')
     ap.add_argument('--tracemalloc', action='store_true',
                     help='also trace Python allocations (separate untimed run)')
+    ap.add_argument('--bag', action='store_true',
+                    help='end to end: write the data to an mcap bag (cached in /tmp) and time '
+                         'the replay from it')
+    ap.add_argument('--passes', default='1,2',
+                    help="with --bag: comma-separated pass counts to time ('1' uses "
+                         "replay.replay, others the CLI; default '1,2', the CLI's default)")
     a = ap.parse_args()
     fx = load_fixture('three_axis')
     grade = load_grade('nav_grade')
     prof = build_profile(loop_plan(), fx)
     sim = simulate(fx, prof, grade, SimConfig(imu_rate_hz=a.rate, seed=0))
     reps = max(1, int(np.ceil(a.minutes * 60 / prof.duration_s)))
+    if a.bag:
+        bench_bag(a, fx, grade, sim, reps)
+        return
     health: list[tuple[float, float, float, float, float]] = []
     rss: list[float] = []
 

@@ -294,3 +294,29 @@ def test_status_stale_and_joint_names_warning(sim) -> None:
     last = int(sim.imu.stamps_ns[49])
     assert est.health(now_ns=last + 100_000_000)['status'] != 'STALE'
     assert est.health(now_ns=last + 2_000_000_000)['status'] == 'STALE'
+
+
+def test_joint_batch_push_equals_single_pushes(sim) -> None:
+    """Same verdicts, unwrapping and buffers as single pushes (wrapped encoders, bad rows)."""
+    jb = sim.joints
+    q = (jb.positions_rad + np.pi) % (2 * np.pi) - np.pi  # wrapped, as CONTRACT 1 allows
+    t = jb.stamps_ns.copy()
+    q[50, 2] = np.nan
+    t[60] = t[59]
+    t[70] = t[65]
+    a = CalibrationEstimator(FX, GRADE)
+    b = CalibrationEstimator(FX, GRADE)
+    for i in range(len(t)):
+        a.push_joint(JointSample(int(t[i]), jb.names, q[i]))
+    for k in range(0, len(t), 1000):
+        b.push_joint_batch(dataclasses.replace(jb, stamps_ns=t[k:k + 1000],
+                                               positions_rad=q[k:k + 1000],
+                                               velocities_rad_s=None))
+    assert a.counters == b.counters and a.counters['joint_samples'] == len(t) - 3
+    assert a._jt == b._jt  # noqa: SLF001
+    np.testing.assert_array_equal(np.array(a._jq), np.array(b._jq))  # noqa: SLF001
+    # unwrapped: continuous, and equal to the unwrapped truth modulo a whole turn
+    jq = np.array(b._jq)  # noqa: SLF001
+    turns = (jq - np.delete(jb.positions_rad, [50, 60, 70], axis=0)) / (2 * np.pi)
+    np.testing.assert_allclose(turns, np.round(turns[0]) + 0 * turns, atol=1e-9)
+    assert a.joint_travel_rad == b.joint_travel_rad > 3.0

@@ -426,3 +426,93 @@ def test_iter_bag_memory_is_bounded(tmp_path: Path) -> None:
     # keeps a small per-chunk index (measured: 3.7 MB peak at 2.6 MB, 4.9 MB at 23 MB)
     assert peak_l < 1.5 * peak_s, sizes
     assert peak_l < size_l / 3, sizes
+
+
+def _flatten(batches: list) -> tuple[list, list, list]:
+    """(IMU samples, joint samples, kinds per batch) of a batch stream."""
+    imu, joints, kinds = [], [], []
+    for b in batches:
+        kinds.append('i' if isinstance(b, ImuBatch) else 'j')
+        (imu if isinstance(b, ImuBatch) else joints).extend(list(b))
+    return imu, joints, kinds
+
+
+@pytest.mark.parametrize('window', [1, 50, 100000])
+def test_batches_carry_the_samples_of_iter_bag(tmp_path: Path, window: int) -> None:
+    """iter_bag_batches: the same samples as iter_bag, per topic in order; per window the
+    joint states first, so no joint state comes after an IMU sample stamped later."""
+    imu, joints = make_batches(300, 150)
+    path = tmp_path / 'b.mcap'
+    bag.write_bag(path, imu, joints)
+    samples = list(bag.iter_bag(path))
+    batches = list(bag.iter_bag(path).batches(window))
+    got_i, got_j, kinds = _flatten(batches)
+    assert_imu_equal(imu, ImuBatch.from_samples(got_i))
+    assert all(b.frame_id == 'imu_link' for b in batches if isinstance(b, ImuBatch))
+    ref_j = [s for s in samples if isinstance(s, JointSample)]
+    assert [j.stamp_ns for j in got_j] == [j.stamp_ns for j in ref_j]
+    np.testing.assert_array_equal([j.positions_rad for j in got_j], joints.positions_rad)
+    n_windows = -(-450 // window)
+    assert len(batches) <= 2 * n_windows and (kinds[0] == 'j' or window == 1)
+    # joints never late: every joint stamp is pushed before any later IMU stamp
+    seen_imu_max = -1
+    for b in batches:
+        if isinstance(b, JointBatch):
+            assert int(b.stamps_ns.min()) > seen_imu_max or window == 1
+        else:
+            seen_imu_max = max(seen_imu_max, int(b.stamps_ns.max()))
+    if window == 1:  # one message per window: exactly the interleaved order of iter_bag
+        assert ''.join(kinds) == ''.join('i' if isinstance(s, ImuSample) else 'j'
+                                         for s in samples)
+
+
+def test_batches_general_path_keeps_names_and_frame_ids(tmp_path: Path) -> None:
+    """Mixed frame_ids / permuted or foreign joint names: runs, each with its own names."""
+    s1 = ImuSample(1000, np.array([1.0, 2, 3]), np.array([4.0, 5, 6]), 'a')
+    s2 = ImuSample(2000, np.array([7.0, 8, 9]), np.array([1.0, 2, 3]), 'longer_frame')
+    j1 = JointSample(1500, ('x', 'y'), np.array([0.1, 0.2]), None)
+    j2 = JointSample(2500, ('y', 'x'), np.array([0.4, 0.3]), np.array([2.0, 1.0]))
+    j3 = JointSample(2600, ('y', 'x'), np.array([0.5, 0.3]), np.array([2.0, 1.0]))
+    _write_raw_bag(tmp_path / 'm', [
+        ('/imu/data_raw', IMU_MSGTYPE, 1000, imu_msg_from_sample(s1, STORE)),
+        ('/joint_states', JOINT_STATE_MSGTYPE, 1500, joint_state_msg_from_sample(j1, STORE)),
+        ('/imu/data_raw', IMU_MSGTYPE, 2000, imu_msg_from_sample(s2, STORE)),
+        ('/joint_states', JOINT_STATE_MSGTYPE, 2500, joint_state_msg_from_sample(j2, STORE)),
+        ('/joint_states', JOINT_STATE_MSGTYPE, 2600, joint_state_msg_from_sample(j3, STORE))])
+    batches = list(bag.iter_bag_batches(tmp_path / 'm'))
+    assert [type(b).__name__ for b in batches] == ['JointBatch', 'JointBatch', 'ImuBatch',
+                                                   'ImuBatch']
+    assert batches[0].names == ('x', 'y') and batches[1].names == ('y', 'x')
+    np.testing.assert_array_equal(batches[1].positions_rad, [[0.4, 0.3], [0.5, 0.3]])
+    np.testing.assert_array_equal(batches[1].stamps_ns, [2500, 2600])
+    assert [b.frame_id for b in batches[2:]] == ['a', 'longer_frame']
+    np.testing.assert_array_equal(batches[3].gyro_rad_s, [[7.0, 8, 9]])
+
+
+def test_batches_errors_as_iter_bag(tmp_path: Path) -> None:
+    imu, joints = make_batches(3000, 1500)
+    path = tmp_path / 'c.mcap'
+    bag.write_bag(path, imu, joints)
+    with pytest.raises(BagError, match="no topic '/nope'"):
+        list(bag.iter_bag_batches(path, joint_topic='/nope'))
+    with open(path, 'r+b') as f:
+        f.truncate(path.stat().st_size // 2)
+    with pytest.raises(BagError, match='truncated or corrupt'):
+        list(bag.iter_bag_batches(path))
+
+
+def test_batches_memory_is_bounded(tmp_path: Path) -> None:
+    """A 6x longer bag streams as batches in about the same memory (one window)."""
+    peaks = {}
+    for n_imu in (6000, 36000):
+        imu, joints = make_batches(n_imu, n_imu // 3)
+        path = tmp_path / f'{n_imu}.mcap'
+        bag.write_bag(path, imu, joints)
+        it = bag.iter_bag_batches(path, window_msgs=2048)
+        next(it)
+        tracemalloc.start()
+        n = sum(len(b) for b in it)
+        peaks[n_imu] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert n > 0.9 * (n_imu + n_imu // 3)
+    assert peaks[36000] < 1.5 * peaks[6000], peaks

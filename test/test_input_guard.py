@@ -120,3 +120,45 @@ def test_joint_reasons() -> None:
 
 def test_reason_names_are_stable() -> None:
     assert len(set(IMU_REASONS)) == len(IMU_REASONS)
+
+
+def _bad_joint_stream(m: int = 600) -> tuple[np.ndarray, np.ndarray]:
+    """Joint samples (fixture order) with NaN, duplicate, older, much older stamps and
+    wrapped encoders."""
+    rng = np.random.default_rng(3)
+    t = 10**18 + np.arange(m, dtype=np.int64) * 10_000_000
+    q = np.cumsum(rng.normal(0.0, 0.3, (m, 3)), axis=0)
+    q = (q + np.pi) % (2 * np.pi) - np.pi  # wrapped to [-pi, pi)
+    q[10, 1] = np.nan
+    t[20] = t[19]
+    t[30] = t[28]
+    t[31] = t[27] - 5
+    q[40] = np.inf
+    t[41] = t[40]  # duplicate of a rejected (non-finite) sample: accepted
+    return t, q
+
+
+def test_joint_batch_equals_single_checks() -> None:
+    t, q = _bad_joint_stream()
+    names = tuple(reversed(FX.joint_names))
+    q_msg = q[:, ::-1]  # message order differs from the fixture order
+    a, b = guard(), guard()
+    kept = [(int(ti), qa) for ti, qi in zip(t, q_msg)
+            if (qa := a.check_joint(int(ti), names, qi)) is not None]
+    tb, qb = np.zeros(0, np.int64), np.zeros((0, 3))
+    for k in range(0, len(t), 77):  # uneven batches
+        tk, qk = b.check_joint_batch(t[k:k + 77], names, q_msg[k:k + 77])
+        tb, qb = np.concatenate([tb, tk]), np.vstack([qb, qk])
+    assert a.rejected == b.rejected
+    assert {k: v for k, v in b.rejected.items() if v} == {
+        'joint_non_finite': 2, 'joint_duplicate_stamp': 1, 'joint_out_of_order': 2}
+    np.testing.assert_array_equal(tb, [k[0] for k in kept])
+    np.testing.assert_array_equal(qb, np.array([k[1] for k in kept]))
+    # the encoder rates derived from the pending samples are the same too
+    a._update_rates()
+    b._update_rates()
+    np.testing.assert_array_equal(a._rate_t, b._rate_t)
+    np.testing.assert_array_equal(a._rate_v, b._rate_v)
+    c = guard()
+    assert len(c.check_joint_batch(t[:5], ('x', 'y', 'z'), q[:5])[0]) == 0
+    assert c.rejected['joint_missing_names'] == 5 and c.unknown_joint_names == ('x', 'y', 'z')

@@ -59,6 +59,7 @@ IMU_REASONS = ('duplicate_stamp', 'out_of_order', 'time_jump_backward', 'frame_i
 JOINT_REASONS = ('joint_missing_names', 'joint_non_finite', 'joint_duplicate_stamp',
                  'joint_out_of_order')
 RAD_PER_DEG = math.pi / 180.0
+PEND_MAX = 8193  # newest accepted joint samples kept for the encoder rates
 EARTH_RATE_RAD_S = 7.2921151467e-5
 _LOG = logging.getLogger('imu_calib_ros.input')
 
@@ -164,9 +165,10 @@ class InputGuard:
         self._ok_votes = 0
         self._g_votes = 0
         self._last_joint: tuple[int, FloatArray] | None = None
-        # accepted joint samples not yet turned into rates (done lazily, vectorised)
-        self._pend_t: deque[int] = deque(maxlen=8193)
-        self._pend_q: deque[FloatArray] = deque(maxlen=8193)
+        # accepted joint samples not yet turned into rates (done lazily, vectorised): chunks
+        # of (stamps (k,), positions (k, n)); only the newest PEND_MAX rows are kept
+        self._pend: deque[tuple[IntArray, FloatArray]] = deque()
+        self._pend_rows = 0
         self._rate_t = np.zeros(0)  # joint interval mid stamps
         self._rate_v = np.zeros(0)  # |omega_eb_enu| there (encoder-derived)
         self._logged: dict[str, int] = {}
@@ -346,9 +348,70 @@ class InputGuard:
             if stamp_ns < t0:
                 return self._reject_joint('joint_out_of_order')
         self._last_joint = (int(stamp_ns), q)
-        self._pend_t.append(int(stamp_ns))
-        self._pend_q.append(q)
+        self._add_pending(np.array([stamp_ns], np.int64), q[None, :])
         return q
+
+    def check_joint_batch(self, stamps_ns: Any, names: tuple[str, ...] | list[str],
+                          positions_rad: Any) -> tuple[IntArray, FloatArray]:
+        """Classify many joint samples of one name list (vectorised, same verdicts and
+        counters as :meth:`check_joint` one by one).
+
+        Returns
+        -------
+        (stamps (K,), positions (K, n)) of the accepted samples, positions in fixture order.
+        """
+        t = np.asarray(stamps_ns, np.int64).reshape(-1)
+        m = len(t)
+        n = len(self.joint_names)
+        empty = (np.zeros(0, np.int64), np.zeros((0, n)))
+        if m == 0:
+            return empty
+        try:
+            idx = [list(names).index(x) for x in self.joint_names]
+        except ValueError:
+            self.unknown_joint_names = tuple(names)
+            return self._reject_joints('joint_missing_names', m, empty)
+        q_all = np.asarray(positions_rad, float)
+        if q_all.ndim != 2 or q_all.shape != (m, len(names)):
+            return self._reject_joints('joint_missing_names', m, empty)
+        q = q_all[:, idx]
+        finite = np.isfinite(q).all(axis=1)
+        n_bad = m - int(finite.sum())
+        if n_bad:
+            self.rejected['joint_non_finite'] += n_bad
+            t, q = t[finite], q[finite]
+        # the newest accepted stamp before each sample is the running maximum of the finite
+        # stamps before it (a finite sample is rejected only if it is not above that maximum)
+        first = np.iinfo(np.int64).min if self._last_joint is None else self._last_joint[0]
+        prev_max = np.maximum.accumulate(np.concatenate([[first], t]))[:-1]
+        dup = int((t == prev_max).sum())
+        old = int((t < prev_max).sum())
+        if dup:
+            self.rejected['joint_duplicate_stamp'] += dup
+        if old:
+            self.rejected['joint_out_of_order'] += old
+        if dup or old:
+            ok = t > prev_max
+            t, q = t[ok], q[ok]
+        if n_bad or dup or old:
+            self._log()
+        if len(t):
+            self._last_joint = (int(t[-1]), q[-1])
+            self._add_pending(t, q)
+        return t, q
+
+    def _add_pending(self, t: IntArray, q: FloatArray) -> None:
+        """Queue accepted joint samples for the encoder rates; keep the newest PEND_MAX."""
+        self._pend.append((t, q))
+        self._pend_rows += len(t)
+        while self._pend_rows - len(self._pend[0][0]) >= PEND_MAX:
+            self._pend_rows -= len(self._pend.popleft()[0])
+
+    def _reject_joints(self, name: str, count: int,
+                       empty: tuple[IntArray, FloatArray]) -> tuple[IntArray, FloatArray]:
+        self.rejected[name] += count
+        self._log()
+        return empty
 
     def _reject_joint(self, name: str) -> None:
         self.rejected[name] += 1
@@ -361,10 +424,10 @@ class InputGuard:
         ``|omega_ib| = |sum_i u_i(q) qdot_i + Omega_ie|`` is frame-free; Omega_ie (7e-5 rad/s)
         is far below ``units_min_rate_rad_s`` and left out.
         """
-        if len(self._pend_t) < 2:
+        if self._pend_rows < 2:
             return
-        t = np.fromiter(self._pend_t, np.int64)
-        q = np.array(self._pend_q)
+        t = np.concatenate([c[0] for c in self._pend])[-PEND_MAX:]
+        q = np.concatenate([c[1] for c in self._pend])[-PEND_MAX:]
         dq = np.diff(q, axis=0)
         dq -= 2 * np.pi * np.round(dq / (2 * np.pi))  # wrapped encoders (CONTRACT 1)
         qd = dq / (np.diff(t) * 1e-9)[:, None]
@@ -373,11 +436,9 @@ class InputGuard:
         mid = 0.5 * (t[:-1] + t[1:]).astype(float)
         self._rate_t = np.concatenate([self._rate_t, mid])[-8192:]
         self._rate_v = np.concatenate([self._rate_v, rate])[-8192:]
-        last_t, last_q = self._pend_t[-1], self._pend_q[-1]
-        self._pend_t.clear()
-        self._pend_q.clear()
-        self._pend_t.append(last_t)
-        self._pend_q.append(last_q)
+        self._pend.clear()
+        self._pend.append((t[-1:], q[-1:]))
+        self._pend_rows = 1
 
     # ---------------------------------------------------------------------------- misc
     @property

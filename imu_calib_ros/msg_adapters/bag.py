@@ -340,8 +340,7 @@ def _sample(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> ImuSample
 
 
 def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_TOPIC,
-             joint_topic: str | None = DEFAULT_JOINT_TOPIC
-             ) -> Iterator[ImuSample | JointSample]:
+             joint_topic: str | None = DEFAULT_JOINT_TOPIC) -> 'BagSamples':
     """Stream the IMU and joint samples of a bag in log-time order, with bounded memory.
 
     Parameters
@@ -356,13 +355,46 @@ def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_T
     ImuSample | JointSample
         Stamped with the header stamp, in the order of the record (log) timestamps.
         Values are not checked (NaN passes through: the estimator rejects it).
+        The returned iterator also has :meth:`BagSamples.batches` (the same data as
+        :func:`iter_bag_batches`), which replay uses to skip the per-sample objects.
 
     Raises
     ------
     BagError
         Missing path, not a bag, empty bag, missing topic, wrong type, corrupt data.
     """
-    p = Path(path)
+    return BagSamples(Path(path), imu_topic, joint_topic)
+
+
+class BagSamples:
+    """The iterator :func:`iter_bag` returns: samples one by one, or :meth:`batches`.
+
+    Nothing is opened before the first ``next()`` (errors surface while iterating, as from
+    a generator).
+    """
+
+    def __init__(self, path: Path, imu_topic: str | None, joint_topic: str | None) -> None:
+        self.path = path
+        self.imu_topic = imu_topic
+        self.joint_topic = joint_topic
+        self._it: Iterator[ImuSample | JointSample] | None = None
+
+    def __iter__(self) -> 'BagSamples':
+        return self
+
+    def __next__(self) -> ImuSample | JointSample:
+        if self._it is None:
+            self._it = _iter_samples(self.path, self.imu_topic, self.joint_topic)
+        return next(self._it)
+
+    def batches(self, window_msgs: int | None = None) -> Iterator[ImuBatch | JointBatch]:
+        """:func:`iter_bag_batches` of the same bag and topics."""
+        return iter_bag_batches(self.path, self.imu_topic, self.joint_topic,
+                                window_msgs or BATCH_WINDOW_MSGS)
+
+
+def _iter_samples(p: Path, imu_topic: str | None, joint_topic: str | None
+                  ) -> Iterator[ImuSample | JointSample]:
     wanted = _wanted(imu_topic, joint_topic)
     with _open_reader(p) as reader:
         conns = _connections(reader, p, wanted)
@@ -374,6 +406,118 @@ def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_T
                 yield from _decode_chunk(store, p, buf)
                 buf = []
         yield from _decode_chunk(store, p, buf)
+
+
+BATCH_WINDOW_MSGS = 16384  # raw messages per window of iter_bag_batches (~5 MB of Imu)
+
+
+def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_TOPIC,
+                     joint_topic: str | None = DEFAULT_JOINT_TOPIC,
+                     window_msgs: int = BATCH_WINDOW_MSGS) -> Iterator[ImuBatch | JointBatch]:
+    """Stream a bag as :class:`JointBatch` / :class:`ImuBatch` chunks, with bounded memory.
+
+    The messages are read in log-time order in windows of ``window_msgs``; each window is
+    decoded with the numpy fast path (:func:`read_bag`'s) and yields its joint states first,
+    then its IMU samples, each as batches in log-time order. Joint states thus arrive up to
+    one window *early*, never late, relative to the IMU samples (the estimator buffers joint
+    states; its results do not depend on how far ahead they are). Where the fast path does
+    not apply, messages are decoded one by one and split into runs of one joint-name list /
+    one IMU frame_id, so that every sample keeps its own names and frame_id (as with
+    :func:`iter_bag`). Memory: one window of raw and decoded messages.
+
+    Raises
+    ------
+    BagError
+        As :func:`iter_bag`.
+    """
+    if window_msgs < 1:
+        raise InputError(f'window_msgs must be >= 1, got {window_msgs}')
+    p = Path(path)
+    wanted = _wanted(imu_topic, joint_topic)
+    with _open_reader(p) as reader:
+        conns = _connections(reader, p, wanted)
+        store = _typestore()
+        pending: dict[str, list[Any]] = {t: [] for t in wanted}
+        first: dict[str, tuple[Any, int]] = {}
+        count = 0
+        for conn, t_ns, raw in _raw_messages(reader, p, conns):
+            if not pending[conn.topic]:
+                first[conn.topic] = (conn, t_ns)
+            pending[conn.topic].append(raw)
+            count += 1
+            if count >= window_msgs:
+                yield from _decode_window(store, p, pending, first, joint_topic)
+                count = 0
+        yield from _decode_window(store, p, pending, first, joint_topic)
+
+
+def _decode_window(store: Any, path: Path, pending: dict[str, list[Any]],
+                   first: dict[str, tuple[Any, int]], joint_topic: str | None
+                   ) -> Iterator[ImuBatch | JointBatch]:
+    """The window's joint batches, then its IMU batches; empties ``pending``."""
+    order = sorted(pending, key=lambda t: t != joint_topic)  # the joint topic first
+    for topic in order:
+        raws = pending[topic]
+        if not raws:
+            continue
+        conn, t0 = first[topic]
+        pending[topic] = []
+        if topic == joint_topic:
+            yield from _window_joints(store, path, conn, t0, raws)
+        else:
+            yield from _window_imu(store, path, conn, t0, raws)
+
+
+def _window_imu(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
+                ) -> Iterator[ImuBatch]:
+    first = _sample(store, path, conn, t0, raws[0])
+    rows = _rows(raws)
+    batch = _unpack_imu(rows) if rows is not None else None
+    if batch is not None and _same_sample(batch, first):
+        yield batch
+        return
+    samples = [_sample(store, path, conn, t0, r) for r in raws]
+    k = 0
+    while k < len(samples):  # runs of one frame_id
+        j = k + 1
+        while j < len(samples) and samples[j].frame_id == samples[k].frame_id:
+            j += 1
+        yield ImuBatch.from_samples(samples[k:j])  # type: ignore[arg-type]
+        k = j
+
+
+def _window_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
+                   ) -> Iterator[JointBatch]:
+    first_msg = _deserialize(store, path, conn, t0, raws[0])
+    _sample(store, path, conn, t0, raws[0])
+    rows = _rows(raws)
+    batch = _unpack_joints(rows, first_msg) if rows is not None else None
+    if batch is not None:
+        yield batch
+        return
+    samples: list[JointSample] = [_sample(store, path, conn, t0, r)  # type: ignore[misc]
+                                  for r in raws]
+    k = 0
+    while k < len(samples):  # runs of one name list and one position count
+        names = samples[k].names
+        n_pos = np.shape(samples[k].positions_rad)
+        j = k + 1
+        while j < len(samples) and samples[j].names == names \
+                and np.shape(samples[j].positions_rad) == n_pos:
+            j += 1
+        run = samples[k:j]
+        vel = None
+        if all(s.velocities_rad_s is not None
+               and np.shape(s.velocities_rad_s) == n_pos for s in run):
+            vel = np.array([s.velocities_rad_s for s in run], float)
+        pos = np.array([s.positions_rad for s in run], float)
+        if pos.ndim != 2:  # positions not one per name: one sample per batch (guard rejects)
+            for s in run:
+                yield JointBatch(np.array([s.stamp_ns], np.int64), s.names,
+                                 np.asarray(s.positions_rad, float)[None], None)
+        else:
+            yield JointBatch(np.array([s.stamp_ns for s in run], np.int64), names, pos, vel)
+        k = j
 
 
 ITER_CHUNK_MSGS = 2048  # messages decoded together by iter_bag (~0.7 MB of Imu messages)
@@ -715,5 +859,6 @@ def imu_msg_bytes(sample: ImuSample, frame_id: str | None = None,
     return bytes(store.serialize_cdr(msg, IMU_MSGTYPE))
 
 
-__all__ = ['DEFAULT_IMU_TOPIC', 'DEFAULT_JOINT_TOPIC', 'TopicInfo', 'imu_msg_bytes',
-           'iter_bag', 'list_topics', 'read_bag', 'write_bag']
+__all__ = ['BagSamples', 'DEFAULT_IMU_TOPIC', 'DEFAULT_JOINT_TOPIC', 'TopicInfo',
+           'imu_msg_bytes', 'iter_bag', 'iter_bag_batches', 'list_topics', 'read_bag',
+           'write_bag']

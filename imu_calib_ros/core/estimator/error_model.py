@@ -273,4 +273,6 @@ def compensated_jacobians(errors: object, omega_hat: FloatArray, omega_dot: Floa
     Dg = np.eye(3) + kg + np.einsum('ni,ij->nij', ag * np.sign(omega_hat), np.eye(3))
     Da = np.eye(3) + ka + np.einsum('ni,ij->nij', aa * np.sign(f_hat) + 2 * qa * f_hat,
                                     np.eye(3))
-    return np.linalg.solve(Dg, Mg), np.linalg.solve(Da, Ma)
+    # inv(D) @ M, not solve(D, M): the same values to rounding, 3-4x cheaper batched
+    # (numpy's batched solve with many right-hand sides is slow for 3 x 3 systems)
+    return np.linalg.inv(Dg) @ Mg, np.linalg.inv(Da) @ Ma

@@ -152,6 +152,8 @@ class CalibrationEstimator:
         self._jt: list[int] = []
         self._jq: list[FloatArray] = []
         self._last_joint_q: FloatArray | None = None
+        self._joint_min: FloatArray | None = None
+        self._joint_max: FloatArray | None = None
         self._prev: tuple[int, FloatArray, FloatArray] | None = None
         self._last_imu_stamp: int | None = None
         self._nominal_dt = 0.0
@@ -213,13 +215,12 @@ class CalibrationEstimator:
         self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
-        """Add many joint-state samples (each through the input guard)."""
-        names = tuple(batch.names)
-        q_all = np.asarray(batch.positions_rad, float)
-        for t, qi in zip(np.asarray(batch.stamps_ns, np.int64), q_all):
-            q = self._guard.check_joint(int(t), names, qi)
-            if q is not None:
-                self._append_joint_q(int(t), q)
+        """Add many joint-state samples: the same verdicts, unwrapping and buffers as
+        :meth:`push_joint` one by one, vectorised (input guard ``check_joint_batch``)."""
+        t, q = self._guard.check_joint_batch(batch.stamps_ns, tuple(batch.names),
+                                             batch.positions_rad)
+        if len(t):
+            self._append_joint_batch(t, q)
         self._sync_input_counters()
 
     def flush(self) -> None:
@@ -351,7 +352,62 @@ class CalibrationEstimator:
         self._last_joint_q = q
         self._jt.append(stamp_ns)
         self._jq.append(q)
+        if self._joint_min is None or self._joint_max is None:
+            self._joint_min, self._joint_max = q.copy(), q.copy()
+        else:
+            self._joint_min = np.minimum(self._joint_min, q)
+            self._joint_max = np.maximum(self._joint_max, q)
         self.counters['joint_samples'] += 1
+
+    def _append_joint_batch(self, t: NDArray[np.int64], q: FloatArray) -> None:
+        """:meth:`_append_joint_q` for many samples the guard accepted (finite, stamps
+        strictly increasing and above every earlier accepted stamp), vectorised."""
+        if self._jt and int(t[0]) <= self._jt[-1]:  # cannot happen behind the guard
+            for ti, qi in zip(t.tolist(), q):
+                self._append_joint_q(ti, qi)
+            return
+        two_pi = 2 * np.pi
+        # unwrap: sample k moves by 2 pi m_k, m_k = m_(k-1) + round((q_(k-1) - q_k) / 2 pi);
+        # np.unwrap's formula differs in the last bit, so the sequential rule is used and
+        # checked below (a mismatch, only at exactly half turns, falls back to the loop)
+        last = self._last_joint_q
+        if last is not None:
+            ref_raw = np.vstack([last[None, :], q[:-1]])
+            m = np.cumsum(np.round((ref_raw - q) / two_pi), axis=0)
+        else:
+            m = np.vstack([np.zeros((1, q.shape[1])),
+                           np.cumsum(np.round((q[:-1] - q[1:]) / two_pi), axis=0)])
+        qu = q + two_pi * m
+        if last is None:
+            qu[0] = q[0]  # the first sample is kept as it is (single push)
+            ref, q_chk, qu_chk = qu[:-1], q[1:], qu[1:]
+        else:
+            ref, q_chk, qu_chk = np.vstack([last[None, :], qu[:-1]]), q, qu
+        if not np.array_equal(q_chk + two_pi * np.round((ref - q_chk) / two_pi), qu_chk):
+            for ti, qi in zip(t.tolist(), q):
+                self._append_joint_q(ti, qi)
+            return
+        self._last_joint_q = qu[-1]
+        self._jt.extend(t.tolist())
+        self._jq.extend(qu)
+        self._joint_range(qu)
+        self.counters['joint_samples'] += len(t)
+
+    def _joint_range(self, q: FloatArray) -> None:
+        """Track the smallest and largest accepted (unwrapped) position of every joint."""
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        if self._joint_min is None or self._joint_max is None:
+            self._joint_min, self._joint_max = lo, hi
+        else:
+            self._joint_min = np.minimum(self._joint_min, lo)
+            self._joint_max = np.maximum(self._joint_max, hi)
+
+    @property
+    def joint_travel_rad(self) -> float:
+        """Largest range (max - min) of any joint's accepted, unwrapped positions [rad]."""
+        if self._joint_min is None or self._joint_max is None:
+            return 0.0
+        return float(np.max(self._joint_max - self._joint_min))
 
     def _append_imu(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray) -> None:
         """Buffer samples the input guard accepted (finite, strictly increasing stamps)."""

@@ -3,24 +3,76 @@
 Iteration (Savage, "Improved strapdown IMU calibration procedures", sect. 8; PSINS's passes):
 each pass re-plays the whole bag with the compensation of the previous pass as the starting
 point; the prior covariance is the grade's again, so the data are counted once. Memory is
-bounded: the bag is streamed (``iter_bag``) and pushed in batches of ``batch`` IMU samples.
+bounded: the bag is streamed. A source with a ``batches()`` method (``iter_bag``'s iterator)
+is read as :class:`ImuBatch` / :class:`JointBatch` chunks (``iter_bag_batches``: numpy
+decoding, no per-sample Python objects, joints pushed with ``push_joint_batch``); a plain
+iterable of samples is gathered into batches here. Joint states are always pushed before the
+IMU samples that follow them in stamp order (the estimator's results do not depend on how
+far ahead the joint states are, nor on the IMU batch sizes: tested).
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from ..errors import InputError
-from ..types import ImuBatch, ImuSample
+from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from .config import EstimatorConfig
 from .estimator import CalibrationEstimator, Estimate
+
+
+def _batches_of_samples(samples: Any, batch: int) -> Iterator[ImuBatch | JointBatch]:
+    """Group a stream of ImuSample / JointSample (or batches) into batches, keeping every
+    joint state ahead of the IMU samples that follow it (runs of one joint-name list)."""
+    imu: list[ImuSample] = []
+    joints: list[JointSample] = []
+
+    def joint_batch() -> JointBatch:
+        return JointBatch(np.array([j.stamp_ns for j in joints], np.int64), joints[0].names,
+                          np.array([np.asarray(j.positions_rad, float) for j in joints]))
+
+    for s in samples:
+        if isinstance(s, ImuSample):
+            if imu and s.frame_id != imu[0].frame_id:
+                if joints:
+                    yield joint_batch()
+                    joints = []
+                yield ImuBatch.from_samples(imu)
+                imu = []
+            imu.append(s)
+            if len(imu) >= batch:
+                if joints:
+                    yield joint_batch()
+                    joints = []
+                yield ImuBatch.from_samples(imu)
+                imu = []
+        elif isinstance(s, JointSample):
+            if joints and (s.names != joints[0].names or len(s.positions_rad)
+                           != len(joints[0].positions_rad)):
+                yield joint_batch()
+                joints = []
+            joints.append(s)
+        else:  # already a batch: keep the order
+            if joints:
+                yield joint_batch()
+                joints = []
+            if imu:
+                yield ImuBatch.from_samples(imu)
+                imu = []
+            yield s
+    if joints:
+        yield joint_batch()
+    if imu:
+        yield ImuBatch.from_samples(imu)
 
 
 def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
                 initial: Estimate | None = None, batch: int = 4000,
                 progress: Callable[[int], None] | None = None) -> CalibrationEstimator:
-    """Run one pass over ``samples`` (an iterable of ImuSample / JointSample in stamp order).
+    """Run one pass over ``samples``: an iterable of ImuSample / JointSample in stamp order,
+    or of ImuBatch / JointBatch (joint batches no later than the IMU samples after them), or
+    an object with ``batches()`` giving the latter (``msg_adapters.bag.iter_bag``).
 
     Raises
     ------
@@ -29,26 +81,15 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
         alignment, or no motion.
     """
     est = CalibrationEstimator(fixture, grade, config, initial=initial)
-    buf: list[ImuSample] = []
-    q_min = q_max = None
-    for s in samples:
-        if isinstance(s, ImuSample):
-            buf.append(s)
-            if len(buf) >= batch:
-                est.push_imu_batch(ImuBatch.from_samples(buf))
-                if progress is not None:
-                    progress(len(buf))
-                buf = []
+    batches = samples.batches() if callable(getattr(samples, 'batches', None)) \
+        else _batches_of_samples(samples, batch)
+    for b in batches:
+        if isinstance(b, ImuBatch):
+            est.push_imu_batch(b)
+            if progress is not None:
+                progress(len(b))
         else:
-            est.push_joint(s)
-            if est._last_joint_q is not None:  # noqa: SLF001 - same package
-                q = est._last_joint_q  # noqa: SLF001
-                q_min = q.copy() if q_min is None else np.minimum(q_min, q)
-                q_max = q.copy() if q_max is None else np.maximum(q_max, q)
-    if buf:
-        est.push_imu_batch(ImuBatch.from_samples(buf))
-        if progress is not None:
-            progress(len(buf))
+            est.push_joint_batch(b)
     est.flush()
     c = est.counters
     if c['imu_samples'] == 0:
@@ -61,7 +102,7 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
     if not est.is_running:
         raise InputError(f'no stationary window of {config.init_window_s:g} s with joint '
                          'states for the initial alignment: start the recording at rest')
-    if q_min is None or float(np.max(q_max - q_min)) < 1e-2:
+    if est.joint_travel_rad < 1e-2:
         raise InputError('no motion: the fixture joints did not move (less than 0.01 rad); '
                          'record a rotation plan')
     health = est.health()
