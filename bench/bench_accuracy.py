@@ -38,12 +38,12 @@ from dataclasses import dataclass
 from typing import Any, Iterator
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from imu_calib_ros.core.estimator import CalibrationEstimator, load_estimator_config
 from imu_calib_ros.core.estimator import error_model as em
 from imu_calib_ros.core.estimator.estimator import prior_sigmas
+from imu_calib_ros.core.estimator.truth import calibration_truth as truth_vector
 from imu_calib_ros.core.estimator.replay import replay
 from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.core.imu_grade import load_grade
@@ -96,23 +96,6 @@ class RunResult:
         return float(e @ np.linalg.solve(self.cov, e))
 
 
-def truth_vector(est: CalibrationEstimator, sim: SimResult) -> np.ndarray:
-    """True values (SI) of the estimator's calibration states (no psi, dv)."""
-    lay = est.layout
-    tg, ta = em.theta_from_errors(sim.truth.errors)
-    tg[em.gyro_cols('gyro_bias')] += sim.bias_drift_gyro_rad_s[-1]
-    ta[em.accel_cols('accel_bias')] += sim.bias_drift_accel_m_s2[-1]
-    x = np.zeros(lay.n)
-    x[lay.gyro_state_idx] = tg[lay.gyro_cols]
-    x[lay.accel_state_idx] = ta[lay.accel_cols]
-    tf, fx = sim.true_fixture, est.fixture
-    q0 = np.zeros(tf.n_joints)
-    if 'lever_arm' in lay.slices:
-        x[lay.slices['lever_arm']] = tf.R_enu_imu(q0).T @ tf.p_enu_m(q0)
-    if 'mounting' in lay.slices:
-        x[lay.slices['mounting']] = Rotation.from_matrix(
-            fx.R_enu_imu(q0).T @ tf.R_enu_imu(q0)).as_rotvec()
-    return x[6:]
 
 
 def merged_samples(sim: SimResult) -> Iterator[Any]:

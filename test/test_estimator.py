@@ -9,39 +9,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from imu_calib_ros.core.estimator import CalibrationEstimator, EstimatorConfig
 from imu_calib_ros.core.estimator import error_model as em
 from imu_calib_ros.core.estimator.estimator import prior_sigmas
+from imu_calib_ros.core.estimator.truth import calibration_truth as truth_vector
 from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.core.imu_grade import load_grade
 from imu_calib_ros.core.plans import build_profile, load_plan
 from imu_calib_ros.core.simulator import SimConfig, simulate
 
 
-def truth_vector(est: CalibrationEstimator, sim) -> np.ndarray:
-    """True values of the estimator's calibration states (SI)."""
-    lay = est.layout
-    tg, ta = em.theta_from_errors(sim.truth.errors)
-    x = np.zeros(lay.n)
-    x[lay.gyro_state_idx] = tg[lay.gyro_cols]
-    x[lay.accel_state_idx] = ta[lay.accel_cols]
-    # the filter tracks the total bias: constant + the simulated drift (at the end of the run)
-    tg[em.gyro_cols('gyro_bias')] += sim.bias_drift_gyro_rad_s[-1]
-    ta[em.accel_cols('accel_bias')] += sim.bias_drift_accel_m_s2[-1]
-    x = np.zeros(lay.n)
-    x[lay.gyro_state_idx] = tg[lay.gyro_cols]
-    x[lay.accel_state_idx] = ta[lay.accel_cols]
-    tf, fx = sim.true_fixture, est.fixture
-    q0 = np.zeros(tf.n_joints)
-    if 'lever_arm' in lay.slices:
-        x[lay.slices['lever_arm']] = tf.R_enu_imu(q0).T @ tf.p_enu_m(q0)
-    if 'mounting' in lay.slices:
-        x[lay.slices['mounting']] = Rotation.from_matrix(
-            fx.R_enu_imu(q0).T @ tf.R_enu_imu(q0)).as_rotvec()
-    return x[6:]
 
 
 def run(grade_name: str, cfg: EstimatorConfig, seed: int = 1, plan: str = 'demo_short'):

@@ -23,6 +23,17 @@ from .errors import ConfigError
 T = TypeVar('T')
 
 
+def setting(default: Any, doc: str, lo: float | None = None, hi: float | None = None) -> Any:
+    """A config dataclass field with its default, documentation and range (checked by
+    :func:`from_mapping`, declared as node-parameter descriptors by the nodes)."""
+    meta: dict[str, object] = {'doc': doc}
+    if lo is not None:
+        meta['min'] = lo
+    if hi is not None:
+        meta['max'] = hi
+    return dataclasses.field(default=default, metadata=meta)
+
+
 def load_yaml(path: str | os.PathLike[str]) -> Any:
     """Read a YAML file; a missing, unreadable or malformed file is a :class:`ConfigError`."""
     p = Path(path)

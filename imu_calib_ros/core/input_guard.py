@@ -42,11 +42,14 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+
+from .config import setting
+from .earth import EARTH_RATE_RAD_S
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -60,17 +63,7 @@ JOINT_REASONS = ('joint_missing_names', 'joint_non_finite', 'joint_duplicate_sta
                  'joint_out_of_order')
 RAD_PER_DEG = math.pi / 180.0
 PEND_MAX = 8193  # newest accepted joint samples kept for the encoder rates
-EARTH_RATE_RAD_S = 7.2921151467e-5
 _LOG = logging.getLogger('imu_calib_ros.input')
-
-
-def _f(default: object, doc: str, lo: float | None = None, hi: float | None = None) -> Any:
-    meta: dict[str, object] = {'doc': doc}
-    if lo is not None:
-        meta['min'] = lo
-    if hi is not None:
-        meta['max'] = hi
-    return field(default=default, metadata=meta)
 
 
 @dataclass(frozen=True)
@@ -80,45 +73,45 @@ class GuardConfig:
     Load from a mapping with :func:`imu_calib_ros.core.config.from_mapping` (strict keys).
     """
 
-    frame_id: str = _f('', "expected IMU header.frame_id; '' accepts any")
-    gyro_saturation_rad_s: float = _f(34.906585, 'a sample with any |gyro axis| at or above '
+    frame_id: str = setting('', "expected IMU header.frame_id; '' accepts any")
+    gyro_saturation_rad_s: float = setting(34.906585, 'a sample with any |gyro axis| at or above '
                                       'this is saturated (default 2000 deg/s)', 1e-3)
-    accel_saturation_m_s2: float = _f(156.9064, 'a sample with any |accel axis| at or above '
+    accel_saturation_m_s2: float = setting(156.9064, 'a sample with any |accel axis| at or above '
                                       'this is saturated (default 16 g)', 1e-3)
-    accel_magnitude_tolerance: float = _f(0.5, 'reject |f| outside g (1 +- this); 0 disables',
+    accel_magnitude_tolerance: float = setting(0.5, 'reject |f| outside g (1 +- this); 0 disables',
                                           0.0, 10.0)
-    units_min_rate_rad_s: float = _f(0.05, 'encoder rate above which gyro units are checked',
+    units_min_rate_rad_s: float = setting(0.05, 'encoder rate above which gyro units are checked',
                                      1e-4)
-    units_ratio_tolerance: float = _f(0.3, 'relative tolerance of the 180/pi (deg/s) and 1 '
+    units_ratio_tolerance: float = setting(0.3, 'relative tolerance of the 180/pi (deg/s) and 1 '
                                       '(g) signatures', 0.01, 0.9)
-    units_latch_count: int = _f(20, 'deg/s-signature samples before the units error latches',
+    units_latch_count: int = setting(20, 'deg/s-signature samples before the units error latches',
                                 1, 100000)
-    time_jump_backward_s: float = _f(1.0, 'a stamp older than the newest by more than this '
+    time_jump_backward_s: float = setting(1.0, 'a stamp older than the newest by more than this '
                                      'is a backward time jump (looping bag)', 0.0)
-    gap_periods: float = _f(1.5, 'an interval longer than this many nominal periods is a gap '
+    gap_periods: float = setting(1.5, 'an interval longer than this many nominal periods is a gap '
                             '(CONTRACT 1)', 1.0)
-    max_gap_s: float = _f(1.0, 'a gap longer than this triggers gap_policy', 1e-3)
-    gap_policy: Literal['reinitialise', 'bridge'] = _f(
+    max_gap_s: float = setting(1.0, 'a gap longer than this triggers gap_policy', 1e-3)
+    gap_policy: Literal['reinitialise', 'bridge'] = setting(
         'reinitialise', "long gap: 'reinitialise' the navigation states at the next "
         "stationary window keeping the calibration states and their covariance, or 'bridge' "
         "with inflated covariance (only if the joints did not move across the gap; else "
         "reinitialise)")
-    bridge_attitude_sigma_rad: float = _f(1e-4, 'attitude sigma added when bridging', 0.0)
-    bridge_velocity_sigma_m_s: float = _f(1e-4, 'velocity sigma added when bridging', 0.0)
-    nis_window: int = _f(50, 'measurement updates in the divergence window', 5, 100000)
-    max_rejected_fraction: float = _f(0.5, 'gate rejections in the window above this '
+    bridge_attitude_sigma_rad: float = setting(1e-4, 'attitude sigma added when bridging', 0.0)
+    bridge_velocity_sigma_m_s: float = setting(1e-4, 'velocity sigma added when bridging', 0.0)
+    nis_window: int = setting(50, 'measurement updates in the divergence window', 5, 100000)
+    max_rejected_fraction: float = setting(0.5, 'gate rejections in the window above this '
                                       'fraction: diverged', 0.01, 1.0)
-    max_mean_nis_per_dof: float = _f(20.0, 'mean NIS per measurement dof in the window above '
+    max_mean_nis_per_dof: float = setting(20.0, 'mean NIS per measurement dof in the window above '
                                      'this: diverged', 1.0)
-    state_range_sigmas: float = _f(50.0, 'a calibration state beyond this many prior sigmas '
+    state_range_sigmas: float = setting(50.0, 'a calibration state beyond this many prior sigmas '
                                    'has left its physical range: diverged', 3.0)
-    max_velocity_m_s: float = _f(1.0, 'navigated velocity above this: diverged (the IMU point '
+    max_velocity_m_s: float = setting(1.0, 'navigated velocity above this: diverged (the IMU point '
                                  'stays within centimetres of the axes)', 1e-3)
-    warn_hold_s: float = _f(10.0, 'health stays WARN this long (data time) after a rejection '
+    warn_hold_s: float = setting(10.0, 'health stays WARN this long (data time) after a rejection '
                             'or gap', 0.0)
-    stale_after_s: float = _f(1.0, "health is STALE when no IMU sample was accepted for this "
+    stale_after_s: float = setting(1.0, "health is STALE when no IMU sample was accepted for this "
                               "long before health(now_ns)", 1e-3)
-    log_period_s: float = _f(5.0, 'at most one rejection log line per this period (wall)',
+    log_period_s: float = setting(5.0, 'at most one rejection log line per this period (wall)',
                              0.0)
 
 

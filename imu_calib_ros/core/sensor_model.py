@@ -71,6 +71,8 @@ _LAYOUT: tuple[tuple[str, str, tuple[int, ...], tuple[tuple[int, int], ...] | No
 PARAMETER_KEYS: tuple[str, ...] = tuple(k for k, *_ in _LAYOUT)
 #: Dotted key -> dataclass field name.
 FIELD_OF_KEY: dict[str, str] = {k: f for k, f, *_ in _LAYOUT}
+#: SensorErrors field -> dotted CONTRACT 4 key (the inverse of FIELD_OF_KEY)
+KEY_OF_FIELD: dict[str, str] = {f: k for k, f, *_ in _LAYOUT}
 
 
 def _build_index() -> tuple[dict[str, slice], tuple[str, ...]]:

@@ -7,21 +7,14 @@ keys. Load a file with :func:`load_estimator_config`.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
-from ..config import load_config, resolve_config_file
+from ..config import load_config, resolve_config_file, setting
 
 __all__ = ['EstimatorConfig', 'load_estimator_config']
 
 
-def _f(default: object, doc: str, lo: float | None = None, hi: float | None = None) -> object:
-    meta: dict[str, object] = {'doc': doc}
-    if lo is not None:
-        meta['min'] = lo
-    if hi is not None:
-        meta['max'] = hi
-    return field(default=default, metadata=meta)
 
 
 @dataclass(frozen=True)
@@ -33,47 +26,47 @@ class EstimatorConfig:
     """
 
     # --- state groups (CONTRACT 3 names) -------------------------------------------------
-    estimate_gyro_bias: bool = _f(True, 'estimate the gyro biases bg (3)')
-    estimate_gyro_scale: bool = _f(True, 'estimate the gyro scale factors diag(Kg) (3)')
-    estimate_gyro_asymmetry: bool = _f(True, 'estimate the gyro scale asymmetries ag (3)')
-    estimate_gyro_misalignment: bool = _f(True, 'estimate the symmetric gyro misalignments (3)')
-    estimate_gyro_g_sensitivity: bool = _f(True, 'estimate the gyro g-sensitivity G (9); '
+    estimate_gyro_bias: bool = setting(True, 'estimate the gyro biases bg (3)')
+    estimate_gyro_scale: bool = setting(True, 'estimate the gyro scale factors diag(Kg) (3)')
+    estimate_gyro_asymmetry: bool = setting(True, 'estimate the gyro scale asymmetries ag (3)')
+    estimate_gyro_misalignment: bool = setting(True, 'estimate the symmetric gyro misalignments (3)')
+    estimate_gyro_g_sensitivity: bool = setting(True, 'estimate the gyro g-sensitivity G (9); '
                                            'dropped when the grade gives it sigma 0')
-    estimate_accel_bias: bool = _f(True, 'estimate the accelerometer biases ba (3)')
-    estimate_accel_scale: bool = _f(True, 'estimate the accelerometer scale diag(Ka) (3)')
-    estimate_accel_asymmetry: bool = _f(True, 'estimate the accelerometer asymmetries aa (3)')
-    estimate_accel_misalignment: bool = _f(True, 'estimate the accel misalignments (6)')
-    estimate_accel_quadratic: bool = _f(True, 'estimate the accel quadratic terms qa (3)')
-    estimate_size_effect: bool = _f(True, 'estimate the six size-effect coordinates r_ij')
-    estimate_lever_arm: bool = _f(True, 'estimate the reference point offset rho from the axes')
-    estimate_time_offset: bool = _f(False, 'estimate the accel-minus-gyro time offset (1)')
+    estimate_accel_bias: bool = setting(True, 'estimate the accelerometer biases ba (3)')
+    estimate_accel_scale: bool = setting(True, 'estimate the accelerometer scale diag(Ka) (3)')
+    estimate_accel_asymmetry: bool = setting(True, 'estimate the accelerometer asymmetries aa (3)')
+    estimate_accel_misalignment: bool = setting(True, 'estimate the accel misalignments (6)')
+    estimate_accel_quadratic: bool = setting(True, 'estimate the accel quadratic terms qa (3)')
+    estimate_size_effect: bool = setting(True, 'estimate the six size-effect coordinates r_ij')
+    estimate_lever_arm: bool = setting(True, 'estimate the reference point offset rho from the axes')
+    estimate_time_offset: bool = setting(False, 'estimate the accel-minus-gyro time offset (1)')
     # --- measurements --------------------------------------------------------------------
-    update_rate_hz: float = _f(10.0, 'rate of the zero-velocity (lever-arm) updates', 0.1, 1000.0)
+    update_rate_hz: float = setting(10.0, 'rate of the zero-velocity (lever-arm) updates', 0.1, 1000.0)
     # 1e-6: the pseudo-measurement itself is exact on a rigid fixture; with 5e-6 the mean NIS
     # of the velocity updates was 2.50 (of 3) on srt_then_kozlov at 200 Hz, with 1e-6 it is
     # 2.95 and every calibration sigma is unchanged to < 0.3 % (bench/bench_accuracy.py).
-    velocity_sigma_m_s: float = _f(1e-6, 'one-sigma noise of the velocity measurement', 1e-9)
-    attitude_aiding: bool = _f(False, 'attitude updates from the joint encoders + mounting states')
-    attitude_sigma_rad: float = _f(1e-4, 'one-sigma noise of the encoder attitude measurement',
+    velocity_sigma_m_s: float = setting(1e-6, 'one-sigma noise of the velocity measurement', 1e-9)
+    attitude_aiding: bool = setting(False, 'attitude updates from the joint encoders + mounting states')
+    attitude_sigma_rad: float = setting(1e-4, 'one-sigma noise of the encoder attitude measurement',
                                    1e-9)
-    gate_probability: float = _f(0.99999, 'chi-square gate: reject innovations beyond this '
+    gate_probability: float = setting(0.99999, 'chi-square gate: reject innovations beyond this '
                                  'quantile (1 disables the gate)', 0.5, 1.0)
-    block_chunks: int = _f(10, 'updates per block between feedbacks to the navigator', 1, 1000)
+    block_chunks: int = setting(10, 'updates per block between feedbacks to the navigator', 1, 1000)
     # --- initialisation --------------------------------------------------------------------
-    init_window_s: float = _f(2.0, 'stationary window for coarse alignment', 0.1, 600.0)
-    stationary_joint_tolerance_rad: float = _f(1e-4, 'joint travel allowed in the window', 0.0)
-    initial_tilt_sigma_rad: float = _f(2e-3, 'prior sigma of the levelled tilt', 1e-9)
-    initial_heading_sigma_rad: float = _f(5e-3, 'prior sigma of the fixture heading', 1e-9)
-    initial_velocity_sigma_m_s: float = _f(1e-3, 'prior sigma of the initial velocity', 1e-9)
-    lever_arm_sigma_m: float = _f(5e-3, 'prior sigma of the reference point offset', 1e-9)
-    mounting_sigma_rad: float = _f(3e-3, 'prior sigma of the mounting rotation', 1e-9)
-    time_offset_sigma_s: float = _f(1e-3, 'prior sigma of the time offset', 1e-12)
-    prior_sigma_scale: float = _f(1.0, 'multiplies the grade sigmas used as the prior', 1e-3)
-    noise_source: Literal['grade', 'data'] = _f(
+    init_window_s: float = setting(2.0, 'stationary window for coarse alignment', 0.1, 600.0)
+    stationary_joint_tolerance_rad: float = setting(1e-4, 'joint travel allowed in the window', 0.0)
+    initial_tilt_sigma_rad: float = setting(2e-3, 'prior sigma of the levelled tilt', 1e-9)
+    initial_heading_sigma_rad: float = setting(5e-3, 'prior sigma of the fixture heading', 1e-9)
+    initial_velocity_sigma_m_s: float = setting(1e-3, 'prior sigma of the initial velocity', 1e-9)
+    lever_arm_sigma_m: float = setting(5e-3, 'prior sigma of the reference point offset', 1e-9)
+    mounting_sigma_rad: float = setting(3e-3, 'prior sigma of the mounting rotation', 1e-9)
+    time_offset_sigma_s: float = setting(1e-3, 'prior sigma of the time offset', 1e-12)
+    prior_sigma_scale: float = setting(1.0, 'multiplies the grade sigmas used as the prior', 1e-3)
+    noise_source: Literal['grade', 'data'] = setting(
         'grade', "process noise from the IMU grade file, or estimated from the stationary "
         "window ('data', Allan deviation via allantools)")
-    noise_scale: float = _f(1.0, 'multiplies the white-noise densities used in Q', 0.01)
-    max_pending_s: float = _f(2.0, 'longest wait for joint states before updating without '
+    noise_scale: float = setting(1.0, 'multiplies the white-noise densities used in Q', 0.01)
+    max_pending_s: float = setting(2.0, 'longest wait for joint states before updating without '
                               'attitude aiding', 0.01)
 
     @property

@@ -39,7 +39,9 @@ import scipy.linalg
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from ..earth import EARTH_RATE_RAD_S
 from ..errors import InputError
+from ..sensor_model import KEY_OF_FIELD
 from ..types import ImuBatch, JointBatch
 from .windows import Window, stationary_windows
 
@@ -565,7 +567,7 @@ def design_sensitivities(seq_ids: Sequence[str], g_m_s2: float = 9.80665,
     computed through the processing on ideal data (the "linear model of eqs. 3-5 in code").
     """
     lat = np.radians(latitude_deg)
-    w_ie = 7.2921151467e-5 * np.array([0.0, np.cos(lat), np.sin(lat)])
+    w_ie = EARTH_RATE_RAD_S * np.array([0.0, np.cos(lat), np.sin(lat)])
     Js, names = [], []
     for sid in seq_ids:
         stamps, gyro, accel, R0 = synthesize_sequence(sid, g_m_s2, w_ie, **kw)
@@ -634,17 +636,7 @@ def _grade_sigmas(grade: Any) -> dict[str, FloatArray]:
 
 
 #: SensorErrors field -> CONTRACT 4 key
-FIELD_KEYS = {
-    'gyro_bias_rad_s': 'gyroscope.bias',
-    'gyro_scale_misalignment': 'gyroscope.scale_misalignment',
-    'gyro_scale_asymmetry': 'gyroscope.scale_asymmetry',
-    'gyro_g_sensitivity_rad_s_per_m_s2': 'gyroscope.g_sensitivity',
-    'accel_bias_m_s2': 'accelerometer.bias',
-    'accel_scale_misalignment': 'accelerometer.scale_misalignment',
-    'accel_scale_asymmetry': 'accelerometer.scale_asymmetry',
-    'accel_quadratic_per_m_s2': 'accelerometer.quadratic',
-    'size_effect_m': 'accelerometer.size_effect',
-}
+FIELD_KEYS = KEY_OF_FIELD
 
 
 def _fields(errors: Any) -> dict[str, FloatArray]:
