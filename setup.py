@@ -34,6 +34,7 @@ setup(
             'turntable_sim = imu_calib_ros.nodes.turntable_sim:main',
             'turntable_driver = imu_calib_ros.nodes.turntable_driver:main',
             'bag_player = imu_calib_ros.nodes.bag_player:main',
+            'modulation = imu_calib_ros.nodes.modulation:main',
         ],
     },
 )

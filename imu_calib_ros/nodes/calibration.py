@@ -3,57 +3,61 @@
 Topics (relative names, remappable):
 
 - subscribes ``imu/data_raw`` (``sensor_msgs/Imu``) and ``joint_states``
-  (``sensor_msgs/JointState``) with sensor-data QoS (best effort);
+  (``sensor_msgs/JointState``) with sensor-data QoS (best effort, keep last
+  ``queue_depth``);
 - publishes ``imu/data_corrected`` (``sensor_msgs/Imu``, same stamp and frame) for every
-  accepted raw sample, compensated with the current estimate by
-  :class:`~imu_calib_ros.nodes.common.StreamCompensation` (the compensator node's code),
-  covariances from the estimate's sigmas plus the sensor noise,
+  accepted raw sample, compensated in the subscription callback by
+  :class:`~imu_calib_ros.nodes.common.StreamCompensation` (the compensator node's code) with
+  the last *good* estimate snapshot; covariances from its sigmas plus the sensor noise,
   ``orientation_covariance[0] = -1`` (REP-145);
 - publishes, at ``estimate_rate_hz`` and transient-local (late subscribers get the latest),
   ``~/estimates`` (``diagnostic_msgs/DiagnosticArray``: every CONTRACT 4 value and its sigma
   as key/values) and one ``geometry_msgs/Vector3Stamped`` per vector group, ``~/<group>``
   and ``~/<group>_sigma`` (see :data:`VECTOR_GROUPS`);
-- publishes ``/diagnostics``: input rates, rejected samples by reason, the estimator's
-  health (NIS, covariance), level OK/WARN/ERROR/STALE.
+- publishes ``/diagnostics``: input rates, rejected samples by reason (node and estimator),
+  the estimator's health (NIS, covariance), level OK/WARN/ERROR/STALE.
 
 Services (``std_srvs/Trigger``): ``~/save_calibration`` writes the CONTRACT 4 file
 (``output_file``) atomically with :meth:`CalibrationResult.save`; ``~/reset`` restarts the
 estimator. Parameters: :class:`CalibrationNodeConfig`, the estimator's under ``estimator.``
 (the :class:`EstimatorConfig` the CLI uses). ``use_sim_time`` works: timers, staleness and
-diagnostics follow ``/clock``; the estimator itself only sees message stamps.
+diagnostics follow ``/clock``; a backward jump of ``/clock`` (a looping bag) restarts the
+estimator's navigation (rclpy jump callback); the estimator itself only sees message stamps.
 
-Threads: the IMU and joint callbacks only check and queue; a
-:class:`~imu_calib_ros.nodes.common.CompensationWorker` thread compensates and publishes the
-corrected samples, and a timer feeds the queued samples to the estimator in stamp order, so
-the corrected stream never waits for the filter. The node spins in a single-threaded
-executor: measured on this 2-core machine, rclpy's
-MultiThreadedExecutor lost most 800 Hz input to its own overhead, the single-threaded one none.
+Threads: the raw IMU is served by its own thread
+(:class:`~imu_calib_ros.nodes.common.InputThread`: serialised bytes in, checked, compensated
+and published as bytes at once, tens of microseconds), which queues the sample; the rest
+spins in a SingleThreadedExecutor, where a 20 Hz timer hands the queue to an
+:class:`~imu_calib_ros.nodes.estimator_runner.EstimatorRunner` (a child process by default,
+or a thread), whose bounded queue drops and counts under overload. Faults (issue 6): see
+docs/NODES.md.
 """
 from __future__ import annotations
 
 import collections
 import math
 import sys
-import threading
+import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
 from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
-from ..core.types import ImuBatch, ImuSample, JointSample
-from ..msg_adapters.convert import (ImuCovariances, imu_msg_from_sample, imu_sample_from_msg,
-                                    joint_sample_from_msg)
-from .common import (CompensationWorker, StreamCompensation, declare_config, diag9, finite,
-                     latched_qos,
-                     reliable_qos, run_node, sensor_qos, stamp_msg)
+from ..core.types import JointSample
+from ..msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
+                                    time_msg_from_ns)
+from .common import (InputThread, StreamCompensation, declare_config, diag9, finite,
+                     finite3, latched_qos, quiet_publisher, reliable_qos, run_node, sensor_qos)
+from .estimator_runner import EstimatorRunner, Snapshot
 
 NODE_NAME = 'calibration'
 
@@ -94,20 +98,32 @@ class CalibrationNodeConfig:
         'min': 1.0, 'max': 100000.0})
     output_file: str = field(default='imu_calibration.yaml', metadata={
         'doc': 'where ~/save_calibration writes the calibration (CONTRACT 4)'})
+    save_on_shutdown: bool = field(default=False, metadata={
+        'doc': 'on SIGINT/SIGTERM, save the latest good estimate to output_file'})
     estimate_rate_hz: float = field(default=1.0, metadata={
         'doc': 'rate of ~/estimates and the per-group Vector3Stamped [Hz]', 'min': 0.01,
         'max': 100.0})
     diagnostics_rate_hz: float = field(default=1.0, metadata={
         'doc': 'rate of /diagnostics [Hz]', 'min': 0.01, 'max': 100.0})
     filter_rate_hz: float = field(default=20.0, metadata={
-        'doc': 'rate at which queued samples are fed to the estimator [Hz]', 'min': 1.0,
+        'doc': 'rate at which queued samples are handed to the estimator [Hz]', 'min': 1.0,
         'max': 1000.0})
+    estimator_mode: Literal['process', 'thread'] = field(default='process', metadata={
+        'doc': 'run the estimator in a child process (no GIL contention) or a thread'})
+    estimator_queue_batches: int = field(default=50, metadata={
+        'doc': 'bound of the estimator input queue [batches of 1/filter_rate_hz]; when full,'
+               ' batches are dropped and counted', 'min': 1, 'max': 10000})
     stale_timeout_s: float = field(default=2.0, metadata={
         'doc': 'no raw IMU for this long [s, node clock] = STALE', 'min': 0.01})
+    joint_timeout_s: float = field(default=5.0, metadata={
+        'doc': 'IMU data for this long [s of stamps] without joint states of the fixture'
+               ' joints = ERROR', 'min': 0.1})
     warn_rejected_fraction: float = field(default=0.01, metadata={
         'doc': 'WARN when more than this fraction of the inputs was rejected', 'min': 0.0,
         'max': 1.0})
-    queue_depth: int = field(default=2000, metadata={
+    log_throttle_s: float = field(default=5.0, metadata={
+        'doc': 'at most one log line per rejection reason per this period [s]', 'min': 0.0})
+    queue_depth: int = field(default=1000, metadata={
         'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
         'max': 100000})
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig, metadata={
@@ -128,6 +144,11 @@ def _flat_items(prefix: str, value: Any) -> list[tuple[str, str]]:
     return [(prefix, str(value))]
 
 
+#: Estimator health() counters that count rejected or lost input (issue 6), by reason.
+ESTIMATOR_REJECT_KEYS = ('imu_out_of_order', 'imu_non_finite', 'joint_out_of_order',
+                         'joint_missing_names', 'joint_non_finite', 'gaps')
+
+
 class CalibrationNode(Node):
     """Live calibration: raw IMU + joint states in; corrected IMU, estimates, diagnostics out."""
 
@@ -139,159 +160,154 @@ class CalibrationNode(Node):
         from ..core.estimator import CalibrationEstimator
         from ..core.fixture import Fixture
         from ..core.imu_grade import load_grade
-        self.fixture = Fixture.from_yaml(resolve_config_file(cfg.fixture, 'fixtures'))
+        fixture_file = resolve_config_file(cfg.fixture, 'fixtures')
+        self.fixture = Fixture.from_yaml(fixture_file)
         self.grade = load_grade(cfg.imu_grade)
-        self.estimator = CalibrationEstimator(self.fixture, self.grade, cfg.estimator)
+        self.joint_names = tuple(self.fixture.joint_names)
         self.frame_id = cfg.frame_id
-        self.compensation = StreamCompensation(
-            self.estimator.estimate(), self.grade.gyro_noise_rad_s_rt_hz,
-            self.grade.accel_noise_m_s2_rt_hz, 1.0 / cfg.imu_rate_hz)
-        self.worker = CompensationWorker(self.compensation, self._publish_batch)
-        # queued for the estimator thread; deque append/popleft are thread-safe
-        self._queue: collections.deque[ImuSample | JointSample] = collections.deque()
-        self._lock = threading.Lock()  # counters shared between the two callback groups
-        self.counts = {'imu': 0, 'joint': 0, 'published': 0}
+        prior = CalibrationEstimator(self.fixture, self.grade, cfg.estimator).estimate(
+            frame_id=cfg.frame_id or 'imu_link')
+        self.period_s = 1.0 / cfg.imu_rate_hz
+        self.compensation = StreamCompensation(prior, self.grade.gyro_noise_rad_s_rt_hz,
+                                               self.grade.accel_noise_m_s2_rt_hz, self.period_s)
+        self.runner = EstimatorRunner(cfg.estimator_mode,
+                                      (str(fixture_file), cfg.imu_grade, cfg.estimator),
+                                      cfg.frame_id or 'imu_link', cfg.estimator_queue_batches)
+        self._good_seq = -1
+        # filled by the IMU input thread and the joint callback, drained by the filter timer
+        self._pending: collections.deque[tuple[int, Any, Any] | JointSample] = collections.deque()
+        self.counts = {'imu': 0, 'joint': 0, 'published': 0, 'missing_imu': 0,
+                       'time_jumps_backward': 0}
         self.rejected = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0, 'bad_message': 0,
-                         'estimator_error': 0}
-        self._rate_mark = (0, 0, None)  # (imu count, joint count, node time) at last diag
+                         'joint_names': 0, 'compensation_non_finite': 0}
+        self._logged: dict[str, tuple[int, float]] = {}  # reason -> (count, monotonic time)
+        self._rate_mark: tuple[int, int, Any] = (0, 0, None)
         self._last_imu_ns: int | None = None
-        self._last_rx = None  # node clock time of the last raw IMU
-        self._last_pushed_ns = 0
-        self._result = None
-        self._estimator_error = ''
-        io = MutuallyExclusiveCallbackGroup()
-        work = MutuallyExclusiveCallbackGroup()
-        self._pub = self.create_publisher(Imu, 'imu/data_corrected',
-                                          reliable_qos(cfg.queue_depth))
-        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, sensor_qos(cfg.queue_depth),
-                                 callback_group=io)
+        self._first_imu_ns: int | None = None
+        self._joint_ok = False
+        self._last_rx = None
+        self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
+        self._imu_sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
+                                    sensor_qos(cfg.queue_depth), raw=True)
         self.create_subscription(JointState, 'joint_states', self._on_joints,
-                                 sensor_qos(cfg.queue_depth), callback_group=io)
-        self._est_pub = self.create_publisher(DiagnosticArray, '~/estimates', latched_qos())
-        self._vec_pubs = {name: (self.create_publisher(Vector3Stamped, f'~/{name}',
-                                                       latched_qos()),
-                                 self.create_publisher(Vector3Stamped, f'~/{name}_sigma',
-                                                       latched_qos()))
+                                 sensor_qos(cfg.queue_depth))
+        self._est_pub = quiet_publisher(self, DiagnosticArray, '~/estimates', latched_qos())
+        self._vec_pubs = {name: (quiet_publisher(self, Vector3Stamped, f'~/{name}',
+                                                 latched_qos()),
+                                 quiet_publisher(self, Vector3Stamped, f'~/{name}_sigma',
+                                                 latched_qos()))
                           for name in VECTOR_GROUPS}
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable_qos())
-        self.create_timer(1.0 / cfg.filter_rate_hz, self._on_filter_timer, callback_group=work)
-        self.create_timer(1.0 / cfg.estimate_rate_hz, self._on_estimate_timer,
-                          callback_group=work)
-        self.create_timer(1.0 / cfg.diagnostics_rate_hz, self._on_diag_timer,
-                          callback_group=work)
-        self.create_service(Trigger, '~/save_calibration', self._on_save, callback_group=work)
-        self.create_service(Trigger, '~/reset', self._on_reset, callback_group=work)
-        joints = ', '.join(self.fixture.joint_names)
-        self.get_logger().info(f'calibrating on fixture {cfg.fixture} ({joints}), grade '
-                               f'{self.grade.name}, output {cfg.output_file}')
+        self._diag_pub = quiet_publisher(self, DiagnosticArray, '/diagnostics', reliable_qos())
+        self.create_timer(1.0 / cfg.filter_rate_hz, self._on_filter_timer)
+        self.create_timer(1.0 / cfg.estimate_rate_hz, self._on_estimate_timer)
+        self.create_timer(1.0 / cfg.diagnostics_rate_hz, self._on_diag_timer)
+        self.create_service(Trigger, '~/save_calibration', self._on_save)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self._jump_handler = self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1),
+                          on_clock_change=False), post_callback=self._on_time_jump)
+        self.get_logger().info(
+            f'calibrating on fixture {cfg.fixture} (joints {", ".join(self.joint_names)}), '
+            f'grade {self.grade.name}, estimator in a {cfg.estimator_mode}, output '
+            f'{cfg.output_file}')
 
     # ------------------------------------------------------------------ input callbacks
-    def _reject(self, reason: str, detail: str) -> None:
-        with self._lock:
-            self.rejected[reason] += 1
-        self.get_logger().warn(f'rejected input ({reason}): {detail}',
-                               throttle_duration_sec=5.0)
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] += 1
 
-    def _on_imu(self, msg: Imu) -> None:
-        sample = imu_sample_from_msg(msg)
-        self._last_rx = self.get_clock().now()
-        if not self.frame_id:
-            self.frame_id = sample.frame_id
-        if sample.frame_id != self.frame_id:
-            self._reject('frame_id', f'IMU frame "{sample.frame_id}" is not "{self.frame_id}"')
-            return
-        if not finite(sample.gyro_rad_s, sample.accel_m_s2):
-            self._reject('non_finite', f'IMU sample at {sample.stamp_ns} ns')
-            return
-        if self._last_imu_ns is not None and sample.stamp_ns <= self._last_imu_ns:
-            self._reject('out_of_order', f'IMU stamp {sample.stamp_ns} ns not after '
-                                         f'{self._last_imu_ns} ns')
-            return
-        self._last_imu_ns = sample.stamp_ns
-        self.worker.put(sample)
+    def _on_imu(self, data: bytes) -> None:
+        """One raw IMU message (serialised bytes; runs in the IMU input thread)."""
         self.counts['imu'] += 1
-        self._queue.append(sample)
-
-    def _publish_batch(self, samples: list[ImuSample], omega: Any, f: Any, gvar: Any,
-                       avar: Any) -> None:
-        ok = np.all(np.isfinite(omega), axis=1) & np.all(np.isfinite(f), axis=1) & \
-            np.all(np.isfinite(gvar), axis=1) & np.all(np.isfinite(avar), axis=1)
-        for k, s in enumerate(samples):
-            if ok[k]:  # never a NaN out of a publisher
-                self._pub.publish(imu_msg_from_sample(
-                    ImuSample(s.stamp_ns, omega[k], f[k], s.frame_id), Imu,
-                    ImuCovariances(diag9(gvar[k]), diag9(avar[k]))))
-        self.counts['published'] += int(np.sum(ok))
-
-    def destroy_node(self) -> None:
-        """Stop the compensation thread, then the node."""
-        self.worker.stop()
-        super().destroy_node()
+        self._last_rx = self.get_clock().now()
+        try:
+            ns, frame, gyro, accel = imu_fields_from_cdr(data)
+        except ImuCalibError:
+            return self._reject('bad_message')
+        if frame != self.frame_id:
+            if self.frame_id:
+                return self._reject('frame_id')
+            self.frame_id = frame
+            self.runner.set_frame_id(frame)
+        if not finite3(gyro, accel):
+            return self._reject('non_finite')
+        last = self._last_imu_ns
+        if last is not None:
+            if ns <= last:
+                return self._reject('out_of_order')
+            if ns - last > 1.5e9 * self.period_s:  # samples lost upstream or in DDS
+                self.counts['missing_imu'] += round((ns - last) * 1e-9 / self.period_s) - 1
+        else:
+            self._first_imu_ns = self._first_imu_ns or ns
+        self._last_imu_ns = ns
+        omega, f, gvar, avar = self.compensation(ns, gyro, accel)
+        if finite3(omega, f, gvar, avar):  # never a NaN out of a publisher
+            self._pub.publish(imu_cdr(ns, frame, omega, f, diag9(gvar), diag9(avar)))
+            self.counts['published'] += 1
+        else:
+            self._reject('compensation_non_finite')
+        self._pending.append((ns, gyro, accel))  # an IMU sample, cheap to pickle
 
     def _on_joints(self, msg: JointState) -> None:
+        self.counts['joint'] += 1
         try:
             sample = joint_sample_from_msg(msg)
-        except ImuCalibError as exc:
-            self._reject('bad_message', str(exc))
-            return
+        except ImuCalibError:
+            return self._reject('bad_message')
+        if not all(n in sample.names for n in self.joint_names):
+            self._joint_names_seen = sample.names
+            return self._reject('joint_names')
         if not finite(sample.positions_rad):
-            self._reject('non_finite', f'joint state at {sample.stamp_ns} ns')
-            return
-        self.counts['joint'] += 1
-        self._queue.append(sample)
+            return self._reject('non_finite')
+        self._joint_ok = True
+        self._pending.append(sample)
 
-    # ------------------------------------------------------------------ estimator thread
+    def _on_time_jump(self, jump: Any) -> None:
+        """``/clock`` went backward (a looping bag): restart navigation, keep calibration."""
+        if jump.delta.nanoseconds >= 0:
+            return
+        self.counts['time_jumps_backward'] += 1
+        self._pending.clear()
+        self._last_imu_ns = None
+        self.compensation.reset()
+        self.runner.command('reset_navigation')
+        self.get_logger().warn(f'time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: '
+                               'estimator navigation restarted (calibration kept)')
+
+    # ------------------------------------------------------------------ estimator
+    def _hand_over(self) -> None:
+        """Queued samples to the estimator (stamp order), newest snapshot to the stream."""
+        if self._pending:
+            items = [self._pending.popleft() for _ in range(len(self._pending))]
+            # stable: joint before IMU at equal stamps kept
+            items.sort(key=lambda s: s.stamp_ns if isinstance(s, JointSample) else s[0])
+            self.runner.submit(items)
+        self.runner.poll()
+        good = self.runner.last_good
+        if good is not None and good.seq != self._good_seq:
+            self._good_seq = good.seq
+            self.compensation.update(good.result)
+
     def _on_filter_timer(self) -> None:
-        """Feed queued samples to the estimator in stamp order (IMU runs as batches)."""
-        n = len(self._queue)
-        if n == 0:
-            return
-        items = [self._queue.popleft() for _ in range(n)]
-        items.sort(key=lambda s: s.stamp_ns)  # stable: joint before IMU at equal stamps kept
-        run: list[ImuSample] = []
-        try:
-            for s in items:
-                if isinstance(s, ImuSample):
-                    run.append(s)
-                    continue
-                if run:
-                    self.estimator.push_imu_batch(ImuBatch.from_samples(run))
-                    run = []
-                self.estimator.push_joint(s)
-            if run:
-                self.estimator.push_imu_batch(ImuBatch.from_samples(run))
-            self._last_pushed_ns = items[-1].stamp_ns
-        except ImuCalibError as exc:
-            with self._lock:
-                self.rejected['estimator_error'] += len(run) or 1
-            self._estimator_error = str(exc)
-            self.get_logger().error(f'estimator refused input: {exc}',
-                                    throttle_duration_sec=5.0)
-
-    def _current_estimate(self) -> Any:
-        try:
-            result = self.estimator.estimate()
-        except ImuCalibError as exc:
-            self._estimator_error = str(exc)
-            return None
-        self._result = result
-        return result
+        self._hand_over()
 
     def _on_estimate_timer(self) -> None:
-        result = self._current_estimate()
-        if result is None:
+        snap = self.runner.latest_estimate
+        if snap is None:
             return
+        result = snap.result
+        diverged = snap.diverged or bool(self.runner.latest and self.runner.latest.diverged)
         if not (finite(result.errors.as_vector()) and finite(result.sigma.as_vector())):
-            self._estimator_error = 'estimate is not finite'
-            return
-        self.compensation.update(result)
-        stamp = stamp_msg(self._last_pushed_ns) if self._last_pushed_ns else \
+            return  # never a NaN out of a publisher; diagnostics say ERROR
+        stamp = time_msg_from_ns(self._last_imu_ns) if self._last_imu_ns else \
             self.get_clock().now().to_msg()
         arr = DiagnosticArray()
         arr.header.stamp = stamp
+        level = DiagnosticStatus.ERROR if diverged else DiagnosticStatus.OK
         status = DiagnosticStatus(name=f'{self.get_name()}: calibration estimate',
-                                  hardware_id=self.frame_id, level=DiagnosticStatus.OK,
-                                  message='one-sigma values under sigma.*, SI units')
+                                  hardware_id=self.frame_id, level=level,
+                                  message='DIVERGED: the corrected stream uses the last good '
+                                  'estimate' if diverged else
+                                  'one-sigma values under sigma.*, SI units')
         status.values = [KeyValue(key=k, value=v)
                          for k, v in _flat_items('', result.to_dict()['imu_calibration'])]
         arr.status = [status]
@@ -306,27 +322,58 @@ class CalibrationNode(Node):
                 msg.vector.x, msg.vector.y, msg.vector.z = (float(v[i]) for i in idx)
                 pub.publish(msg)
 
+    # ------------------------------------------------------------------ diagnostics
+    def reasons(self, health: dict[str, Any]) -> dict[str, int]:
+        """Every rejection/loss counter by reason: node, estimator queue, estimator, gate."""
+        out = {f'node.{k}': v for k, v in self.rejected.items()}
+        out['node.missing_imu'] = self.counts['missing_imu']
+        out['node.estimator_queue_full'] = self.runner.dropped
+        for k in ESTIMATOR_REJECT_KEYS:
+            if isinstance(health.get(k), (int, float)):
+                out[f'estimator.{k}'] = int(health[k])
+        for k, v in dict(health.get('rejected_by_reason', {}) or {}).items():
+            out[f'estimator.{k}'] = int(v)
+        for k, v in dict(health.get('rejected', {}) or {}).items():
+            out[f'gate.{k}'] = int(v)
+        return out
+
+    def _log_reasons(self, reasons: dict[str, int]) -> None:
+        """One throttled WARN line per reason whose counter grew."""
+        now = time.monotonic()
+        for reason, n in reasons.items():
+            seen, t = self._logged.get(reason, (0, -math.inf))
+            if n > seen and now - t >= self.config.log_throttle_s:
+                self._logged[reason] = (n, now)
+                self.get_logger().warn(f'rejected input ({reason}): {n - seen} more, {n} in '
+                                       'total' + self._hint(reason))
+
+    def _hint(self, reason: str) -> str:
+        if reason == 'node.frame_id':
+            return f'; expected frame_id "{self.frame_id}"'
+        if reason == 'node.joint_names':
+            seen = getattr(self, '_joint_names_seen', ())
+            return f'; expected joints {list(self.joint_names)}, got {list(seen)}'
+        return ''
+
     def _on_diag_timer(self) -> None:
+        self._hand_over()
         now = self.get_clock().now()
-        with self._lock:
-            rejected = dict(self.rejected)
+        snap = self.runner.latest
+        health = dict(snap.health) if snap is not None else {}
         imu_n, joint_n = self.counts['imu'], self.counts['joint']
         last_imu, last_joint, last_t = self._rate_mark
         dt = (now - last_t).nanoseconds * 1e-9 if last_t is not None else 0.0
-        imu_rate = (imu_n - last_imu) / dt if dt > 0 else math.nan
-        joint_rate = (joint_n - last_joint) / dt if dt > 0 else math.nan
         self._rate_mark = (imu_n, joint_n, now)
-        try:
-            health = dict(self.estimator.health())
-        except Exception as exc:  # noqa: BLE001 - report, never crash the diagnostics
-            health = {'health_error': str(exc)}
-        values = {'imu_rate_hz': f'{imu_rate:.1f}', 'joint_rate_hz': f'{joint_rate:.1f}',
-                  'imu_received': str(imu_n), 'joint_received': str(joint_n),
-                  'corrected_published': str(self.counts['published']),
-                  'queued': str(len(self._queue))}
-        values.update({f'rejected.{k}': str(v) for k, v in rejected.items()})
+        values = {k: str(v) for k, v in self.counts.items()}
+        if dt > 0:
+            values['imu_rate_hz'] = f'{(imu_n - last_imu) / dt:.1f}'
+            values['joint_rate_hz'] = f'{(joint_n - last_joint) / dt:.1f}'
+        reasons = self.reasons(health)
+        values.update({f'rejected.{k}': str(v) for k, v in reasons.items()})
         values.update(_health_values(health))
-        level, message = self._level(now, imu_n, joint_n, rejected, health)
+        values['estimator_alive'] = str(self.runner.alive)
+        level, message = self._level(now, imu_n, joint_n, reasons, snap)
+        self._log_reasons(reasons)
         status = DiagnosticStatus(name=f'{self.get_name()}: IMU calibration', level=level,
                                   message=message, hardware_id=self.frame_id)
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
@@ -334,74 +381,94 @@ class CalibrationNode(Node):
         arr.header.stamp = now.to_msg()
         self._diag_pub.publish(arr)
 
-    def _level(self, now: Any, imu_n: int, joint_n: int, rejected: dict[str, int],
-               health: dict[str, Any]) -> tuple[bytes, str]:
+    def _level(self, now: Any, imu_n: int, joint_n: int, reasons: dict[str, int],
+               snap: Snapshot | None) -> tuple[bytes, str]:
         if self._last_rx is None or (now - self._last_rx).nanoseconds * 1e-9 > \
                 self.config.stale_timeout_s:
             return DiagnosticStatus.STALE, 'no raw IMU data'
-        if self._estimator_error:
-            return DiagnosticStatus.ERROR, self._estimator_error
-        if str(health.get('status', '')).upper() in ('ERROR', 'DIVERGED'):
-            return DiagnosticStatus.ERROR, str(health.get('message', 'estimator error'))
-        bad = sum(rejected.values()) + int(_as_number(health.get('rejected_total', 0)))
+        if not self.runner.alive:
+            return DiagnosticStatus.ERROR, 'the estimator process died'
+        if not self._imu_sub.alive:
+            return DiagnosticStatus.ERROR, f'the IMU input thread stopped {self._imu_sub.error}'
+        if snap is not None and snap.diverged:
+            return DiagnosticStatus.ERROR, ('estimator diverged: the corrected stream uses '
+                                            'the last good calibration')
+        expected = ', '.join(self.joint_names)
+        if not self._joint_ok and self._first_imu_ns is not None and self._last_imu_ns and \
+                (self._last_imu_ns - self._first_imu_ns) * 1e-9 > self.config.joint_timeout_s:
+            msg = (f'no joint_states with the fixture joints [{expected}] after '
+                   f'{self.config.joint_timeout_s:g} s of IMU data')
+            self.get_logger().error(msg, throttle_duration_sec=self.config.log_throttle_s)
+            return DiagnosticStatus.ERROR, msg
+        if snap is not None and snap.error:
+            return DiagnosticStatus.ERROR, snap.error
+        bad = sum(reasons.values())
         total = max(imu_n + joint_n, 1)
         if bad / total > self.config.warn_rejected_fraction:
-            return DiagnosticStatus.WARN, f'{bad} of {total} inputs rejected'
-        if str(health.get('status', '')).upper() == 'WARN':
-            return DiagnosticStatus.WARN, str(health.get('message', 'estimator warning'))
+            return DiagnosticStatus.WARN, f'{bad} of {total} inputs rejected or lost'
+        if snap is not None and str(snap.health.get('status', '')).upper() == 'WARN':
+            return DiagnosticStatus.WARN, str(snap.health.get('message', 'estimator warning'))
         return DiagnosticStatus.OK, 'calibrating'
 
-    # ------------------------------------------------------------------ services
-    def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        self._on_filter_timer()  # everything received so far goes into the saved estimate
-        result = self._current_estimate()
-        if result is None:
-            response.success = False
-            response.message = f'no estimate yet: {self._estimator_error}'
-            return response
+    # ------------------------------------------------------------------ services, shutdown
+    def save(self) -> tuple[bool, str]:
+        """Everything received so far into the estimator, then write the last good estimate."""
+        self._hand_over()
+        if not self.runner.request('estimate', 60.0, flush=True):
+            return False, 'the estimator did not answer within 60 s'
+        self._hand_over()
+        good, latest = self.runner.last_good, self.runner.latest_estimate
+        if good is None:
+            return False, f'no usable estimate yet{": " + latest.error if latest else ""}'
         try:
-            result.save(self.config.output_file)
+            good.result.save(self.config.output_file)
         except (ImuCalibError, OSError) as exc:
-            response.success = False
-            response.message = f'cannot write {self.config.output_file}: {exc}'
-            return response
-        response.success = True
-        response.message = self.config.output_file
-        self.get_logger().info(f'calibration saved to {self.config.output_file}')
+            return False, f'cannot write {self.config.output_file}: {exc}'
+        note = ' (the estimator diverged: last good estimate)' if good is not latest else ''
+        return True, f'{self.config.output_file}{note}'
+
+    def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        response.success, response.message = self.save()
+        log = self.get_logger().info if response.success else self.get_logger().error
+        log(f'save_calibration: {response.message}')
         return response
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        self._queue.clear()
-        self.estimator.reset()
-        with self._lock:
-            self.rejected = {k: 0 for k in self.rejected}
-        self._estimator_error = ''
+        self._pending.clear()
+        ok = self.runner.request('reset', 30.0)
+        self.rejected = {k: 0 for k in self.rejected}
         self._last_imu_ns = None
-        self.worker.reset()
-        result = self._current_estimate()
-        if result is not None:
-            self.compensation.update(result)
-        response.success = True
-        response.message = 'estimator reset'
-        self.get_logger().info('estimator reset')
+        self.compensation.reset()
+        self._hand_over()
+        response.success = ok
+        response.message = 'estimator reset' if ok else 'the estimator did not answer'
+        self.get_logger().info(response.message)
         return response
 
+    def on_shutdown(self) -> None:
+        """After SIGINT/SIGTERM: save the latest good estimate if ``save_on_shutdown``."""
+        if self.config.save_on_shutdown:
+            ok, message = self.save()
+            print(f'{self.get_name()}: save on shutdown: {message}', file=sys.stderr,
+                  flush=True)
+            if not ok:
+                raise ImuCalibError(message)
 
-def _as_number(x: Any) -> float:
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return 0.0
+    def destroy_node(self) -> None:
+        """Stop the input thread and the estimator worker, then the node."""
+        self._imu_sub.stop()
+        self.runner.stop()
+        super().destroy_node()
 
 
 def _health_values(health: dict[str, Any], prefix: str = 'estimator.') -> dict[str, str]:
-    """Flatten the estimator's health() into diagnostics key/values."""
+    """Flatten the estimator's health() into diagnostics key/values (no NaN strings)."""
     out: dict[str, str] = {}
     for k, v in health.items():
         if isinstance(v, dict):
             out.update(_health_values(v, f'{prefix}{k}.'))
         elif isinstance(v, float):
-            out[f'{prefix}{k}'] = f'{v:.6g}'
+            out[f'{prefix}{k}'] = f'{v:.6g}' if math.isfinite(v) else 'not finite'
         else:
             out[f'{prefix}{k}'] = str(v)
     return out
@@ -409,7 +476,7 @@ def _health_values(health: dict[str, Any], prefix: str = 'estimator.') -> dict[s
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``calibration``."""
-    sys.setswitchinterval(0.0005)  # let the compensation thread preempt the filter quickly
+    sys.setswitchinterval(0.0005)  # the IMU thread gets the GIL within 0.5 ms (default 5 ms)
     return run_node(CalibrationNode, args)
 
 

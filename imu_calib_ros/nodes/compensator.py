@@ -2,9 +2,9 @@
 
 The robot-side deployment after a calibration: subscribes ``imu/data_raw`` (sensor-data
 QoS), publishes ``imu/data_corrected`` with the same stamp and frame, values from
-:class:`~imu_calib_ros.nodes.common.StreamCompensation` in a
-:class:`~imu_calib_ros.nodes.common.CompensationWorker` thread (the code the calibration
-node uses), covariances from the calibration's sigmas plus the sensor noise, and
+:class:`~imu_calib_ros.nodes.common.StreamCompensation` in the IMU input thread
+(:class:`~imu_calib_ros.nodes.common.InputThread`, the code the calibration node uses),
+covariances from the calibration's sigmas plus the sensor noise, and
 ``orientation_covariance[0] = -1`` (REP-145). A raw sample in another frame than the
 calibration's, or with a non-finite value, is dropped, counted and reported.
 
@@ -14,19 +14,16 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
-from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
 from ..core.calibration import CalibrationResult
-from ..core.errors import ConfigError
-from ..core.types import ImuSample
-from ..msg_adapters.convert import ImuCovariances, imu_msg_from_sample, imu_sample_from_msg
-from .common import (CompensationWorker, StreamCompensation, declare_config, diag9, finite,
-                     reliable_qos, run_node,
-                     sensor_qos)
+from ..core.errors import ConfigError, ImuCalibError
+from ..msg_adapters.convert import imu_cdr, imu_fields_from_cdr
+from .common import (InputThread, StreamCompensation, declare_config, diag9, finite3,
+                     quiet_publisher, reliable_qos, run_node, sensor_qos)
 
 NODE_NAME = 'compensator'
 
@@ -50,7 +47,7 @@ class CompensatorConfig:
     imu_rate_hz: float = field(default=200.0, metadata={
         'doc': 'nominal IMU rate [Hz] (gap threshold 1.5 periods, noise of the mean)',
         'min': 1.0, 'max': 100000.0})
-    queue_depth: int = field(default=100, metadata={
+    queue_depth: int = field(default=500, metadata={
         'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
         'max': 100000})
     diagnostics_rate_hz: float = field(default=1.0, metadata={
@@ -85,16 +82,15 @@ class CompensatorNode(Node):
                                           cfg.accel_noise_m_s2_rt_hz)
         self.compensation = StreamCompensation(self.calibration, gyro_n, accel_n,
                                                1.0 / cfg.imu_rate_hz)
-        self.worker = CompensationWorker(self.compensation, self._publish_batch)
-        self.rejected: dict[str, int] = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0}
+        self.rejected: dict[str, int] = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0,
+                                         'compensation_non_finite': 0, 'bad_message': 0}
         self.published = 0
         self._last_stamp_ns: int | None = None
-        self._pub = self.create_publisher(Imu, 'imu/data_corrected',
-                                         reliable_qos(cfg.queue_depth))
-        self._sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
-                                             sensor_qos(cfg.queue_depth))
+        self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
+        self._sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
+                                sensor_qos(cfg.queue_depth), raw=True)
         if cfg.diagnostics_rate_hz > 0:
-            self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+            self._diag_pub = quiet_publisher(self, DiagnosticArray, '/diagnostics', 10)
             self.create_timer(1.0 / cfg.diagnostics_rate_hz, self._on_diag_timer)
         self.get_logger().info(f'applying {cfg.calibration_file} (frame '
                                f'"{self.calibration.frame_id}")')
@@ -103,33 +99,25 @@ class CompensatorNode(Node):
         self.rejected[reason] += 1
         self.get_logger().warn(f'dropped raw IMU sample: {detail}', throttle_duration_sec=5.0)
 
-    def _on_imu(self, msg: Imu) -> None:
-        sample = imu_sample_from_msg(msg)
-        if sample.frame_id != self.calibration.frame_id:
-            self._reject('frame_id', f'frame "{sample.frame_id}" is not the calibration\'s '
-                                     f'"{self.calibration.frame_id}"')
-            return
-        if not finite(sample.gyro_rad_s, sample.accel_m_s2):
-            self._reject('non_finite', 'non-finite value')
-            return
-        if self._last_stamp_ns is not None and sample.stamp_ns <= self._last_stamp_ns:
-            self._reject('out_of_order', 'stamp not after the previous one')
-            return
-        self._last_stamp_ns = sample.stamp_ns
-        self.worker.put(sample)
-
-    def _publish_batch(self, samples: list[ImuSample], omega: Any, f: Any, gvar: Any,
-                       avar: Any) -> None:
-        for k, s in enumerate(samples):
-            self._pub.publish(imu_msg_from_sample(
-                ImuSample(s.stamp_ns, omega[k], f[k], s.frame_id), Imu,
-                ImuCovariances(diag9(gvar[k]), diag9(avar[k]))))
-        self.published += len(samples)
-
-    def destroy_node(self) -> None:
-        """Stop the compensation thread, then the node."""
-        self.worker.stop()
-        super().destroy_node()
+    def _on_imu(self, data: bytes) -> None:
+        """One raw IMU message (serialised bytes; runs in the IMU input thread)."""
+        try:
+            ns, frame, gyro, accel = imu_fields_from_cdr(data)
+        except ImuCalibError:
+            return self._reject('bad_message', 'not a CDR sensor_msgs/Imu')
+        if frame != self.calibration.frame_id:
+            return self._reject('frame_id', f'frame "{frame}" is not the calibration\'s '
+                                            f'"{self.calibration.frame_id}"')
+        if not finite3(gyro, accel):
+            return self._reject('non_finite', 'non-finite value')
+        if self._last_stamp_ns is not None and ns <= self._last_stamp_ns:
+            return self._reject('out_of_order', 'stamp not after the previous one')
+        self._last_stamp_ns = ns
+        omega, f, gvar, avar = self.compensation(ns, gyro, accel)
+        if not finite3(omega, f, gvar, avar):  # never a NaN out of a publisher
+            return self._reject('compensation_non_finite', 'compensation not finite')
+        self._pub.publish(imu_cdr(ns, frame, omega, f, diag9(gvar), diag9(avar)))
+        self.published += 1
 
     def _on_diag_timer(self) -> None:
         status = DiagnosticStatus(name=f'{self.get_name()}: IMU compensation',
@@ -137,7 +125,8 @@ class CompensatorNode(Node):
         bad = sum(self.rejected.values())
         status.level = DiagnosticStatus.OK if bad == 0 else DiagnosticStatus.WARN
         status.message = 'OK' if bad == 0 else f'{bad} samples dropped'
-        status.values = [KeyValue(key='published', value=str(self.published))] + [
+        status.values = [KeyValue(key='published', value=str(self.published)),
+                         KeyValue(key='received', value=str(self._sub.messages))] + [
             KeyValue(key=f'rejected.{k}', value=str(v)) for k, v in self.rejected.items()]
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
@@ -146,6 +135,7 @@ class CompensatorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``compensator``."""
+    # sys.setswitchinterval(0.0005)
     return run_node(CompensatorNode, args)
 
 

@@ -34,7 +34,7 @@ from trajectory_msgs.msg import JointTrajectory
 from ..core.errors import ConfigError, PlanError
 from ..core.types import FloatArray, ImuBatch, JointBatch
 from ..msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample
-from .common import declare_config, reliable_qos, run_node, stamp_msg
+from .common import declare_config, reliable_qos, run_node, time_msg_from_ns
 
 NODE_NAME = 'turntable_sim'
 
@@ -325,7 +325,7 @@ class TurntableSimNode(Node):
         if (self._imu_pub.get_subscription_count() < cfg.wait_for_subscribers
                 and waited < cfg.wait_timeout_s):
             if self._clock_pub is not None:
-                self._clock_pub.publish(Clock(clock=stamp_msg(self.now_ns)))
+                self._clock_pub.publish(Clock(clock=time_msg_from_ns(self.now_ns)))
             return True
         if cfg.wait_for_subscribers and waited < 0.5:  # let the matching settle both ways
             return True
@@ -351,7 +351,7 @@ class TurntableSimNode(Node):
         self._publish_until(target_ns)
         self.now_ns = target_ns
         if self._clock_pub is not None:
-            self._clock_pub.publish(Clock(clock=stamp_msg(target_ns)))
+            self._clock_pub.publish(Clock(clock=time_msg_from_ns(target_ns)))
         # drop chunks that are entirely published
         while len(self._chunks) > 1 and self._chunks[1].start_ns <= self._last_imu_ns \
                 and self._chunks[0].end_ns <= self._last_imu_ns:

@@ -1,0 +1,434 @@
+"""Run the streaming estimator off the subscription path: a worker thread or a child process.
+
+The calibration node must publish a corrected sample within milliseconds of its arrival,
+while the estimator takes ~50-100 ms of CPU per 1 s block at 1 kHz. :class:`EstimatorRunner`
+feeds the estimator from a *bounded* queue (a full queue drops the batch and counts it:
+memory and latency stay bounded under overload) and hands back :class:`Snapshot` objects:
+the latest estimate with its health, and the last *good* one (finite, not diverged), which
+the corrected stream uses.
+
+Two modes (parameter ``estimator_mode`` of the node), measured by ``bench/bench_live.py``:
+
+- ``'process'`` (default): a child process (``python -m
+  imu_calib_ros.nodes.estimator_runner``) owns the estimator; only pickled batches of
+  samples and snapshots cross its stdin/stdout. The GIL of the node process is never held by the
+  filter, so the corrected stream's latency does not see the blocks.
+- ``'thread'``: a daemon thread in the node process (simpler, no pickling); the filter's
+  Python code then competes with the callbacks for the GIL.
+
+This module imports neither rclpy nor message packages (the child process does not need
+them); everything here is plain Python over the core.
+"""
+from __future__ import annotations
+
+import math
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..core.errors import ImuCalibError
+from ..core.types import ImuBatch, ImuSample, JointSample
+
+#: ``health()`` values meaning the filter diverged (issue 6: windowed NIS, covariance not
+#: positive definite, states out of their physical range).
+DIVERGED_STATUS = ('DIVERGED', 'ERROR')
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What the estimator looked like after some batch.
+
+    ``result`` is a :class:`~imu_calib_ros.core.calibration.CalibrationResult` or None (none
+    yet, or unusable); ``diverged`` is True when health or the values say the filter cannot
+    be trusted; ``error`` is the last refusal or failure message ('' if none).
+    """
+
+    seq: int
+    result: Any
+    health: dict[str, Any]
+    diverged: bool = False
+    error: str = ''
+    wall_time: float = field(default_factory=time.monotonic)
+
+
+def is_diverged(health: dict[str, Any], result: Any) -> bool:
+    """True when the estimator reports divergence or the estimate is not finite.
+
+    ``health['diverged']`` (bool) or ``health['status']`` in :data:`DIVERGED_STATUS` (the
+    estimator's issue-6 flags), or any non-finite value or sigma in ``result``.
+    """
+    if bool(health.get('diverged', False)):
+        return True
+    if str(health.get('status', '')).upper() in DIVERGED_STATUS:
+        return True
+    if result is not None:
+        v = np.concatenate([result.errors.as_vector(), result.sigma.as_vector()])
+        if not np.all(np.isfinite(v)):
+            return True
+    return False
+
+
+def make_estimator(spec: tuple[str, str, Any]) -> Any:
+    """Build a :class:`CalibrationEstimator` from ``(fixture file, grade, EstimatorConfig)``."""
+    from ..core.estimator import CalibrationEstimator
+    from ..core.fixture import Fixture
+    from ..core.imu_grade import load_grade
+    fixture_path, grade_name, config = spec
+    return CalibrationEstimator(Fixture.from_yaml(fixture_path), load_grade(grade_name), config)
+
+
+def reset_navigation(estimator: Any) -> Any:
+    """Restart the navigation states, keep the calibration; returns the estimator to use.
+
+    Uses ``estimator.reset_navigation()`` when the estimator has it; otherwise a new
+    estimator starting from the current calibration values (``initial=``; the covariance
+    restarts at the prior: the estimator has no navigation-only reset yet).
+    """
+    if hasattr(estimator, 'reset_navigation'):
+        estimator.reset_navigation()
+        return estimator
+    if hasattr(estimator, 'estimate_state'):
+        return type(estimator)(estimator.fixture, estimator.grade, estimator.config,
+                               initial=estimator.estimate_state())
+    estimator.reset()
+    return estimator
+
+
+class _Serve:
+    """The worker loop (thread or child process): pushes batches, posts snapshots/replies."""
+
+    def __init__(self, factory: Callable[[], Any], frame_id: str, out_put: Callable[[Any], None],
+                 health_period_s: float = 0.5):
+        self.factory = factory
+        self.est = factory()
+        self.frame_id = frame_id
+        self.out_put = out_put
+        self.health_period_s = health_period_s
+        self.seq = 0
+        self.error = ''
+        self._chunks = -1
+        self._health_t = 0.0
+
+    def push(self, items: list[Any]) -> None:
+        """Push samples (already in stamp order) to the estimator, IMU runs as batches.
+
+        IMU samples are :class:`ImuSample` or plain ``(stamp_ns, gyro (3,), accel (3,))``
+        tuples (cheap to pickle); joint samples are :class:`JointSample`.
+        """
+        run: list[Any] = []
+
+        def flush_run() -> None:
+            if isinstance(run[0], ImuSample):
+                batch = ImuBatch.from_samples(run)
+            else:
+                batch = ImuBatch(np.array([r[0] for r in run], np.int64),
+                                 np.array([r[1] for r in run], float),
+                                 np.array([r[2] for r in run], float), self.frame_id)
+            self.est.push_imu_batch(batch)
+            run.clear()
+
+        try:
+            for s in items:
+                if isinstance(s, JointSample):
+                    if run:
+                        flush_run()
+                    self.est.push_joint(s)
+                else:
+                    run.append(s)
+            if run:
+                flush_run()
+        except ImuCalibError as exc:
+            self.error = f'estimator refused input: {exc}'
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            self.error = f'estimator failed: {type(exc).__name__}: {exc}'
+
+    def snapshot(self, force: bool = False) -> None:
+        """Post a snapshot when a block ran (the estimate changed) or health is due."""
+        try:
+            health = dict(self.est.health())
+        except Exception as exc:  # noqa: BLE001 - report, never kill the worker
+            health = {'health_error': str(exc)}
+        chunks = int(health.get('chunks', 0) or 0)
+        now = time.monotonic()
+        new_estimate = chunks != self._chunks
+        if not (force or new_estimate or now - self._health_t >= self.health_period_s):
+            return
+        self._health_t = now
+        result = None
+        if force or new_estimate:
+            self._chunks = chunks
+            try:
+                result = self.est.estimate(frame_id=self.frame_id)
+            except (ImuCalibError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+                self.error = f'no estimate: {exc}'
+        self.seq += 1
+        self.out_put(('snapshot', Snapshot(self.seq, result, health,
+                                           is_diverged(health, result), self.error)))
+
+    def handle(self, msg: tuple[Any, ...]) -> bool:
+        """One queue message; False means stop."""
+        kind = msg[0]
+        if kind == 'data':
+            self.push(msg[1])
+            self.snapshot()
+        elif kind == 'frame_id':
+            self.frame_id = msg[1]
+        elif kind == 'reset':
+            self.est.reset()
+            self.error = ''
+            self._chunks = -1
+            self.snapshot(force=True)
+            self.out_put(('reply', msg[1], True))
+        elif kind == 'reset_navigation':
+            self.est = reset_navigation(self.est)
+            self._chunks = -1
+            self.out_put(('reply', msg[1], True))
+        elif kind == 'estimate':
+            if msg[2]:  # flush: process every complete chunk now (save, shutdown)
+                try:
+                    self.est.flush()
+                except (ImuCalibError, ArithmeticError, ValueError) as exc:
+                    self.error = f'estimator failed at flush: {exc}'
+            self.snapshot(force=True)
+            self.out_put(('reply', msg[1], True))
+        elif kind == 'stop':
+            return False
+        return True
+
+
+def _child_main() -> None:
+    """Child-process entry (``python -m imu_calib_ros.nodes.estimator_runner``).
+
+    Reads pickled commands from stdin (the first is ``('init', spec, frame_id)``), writes
+    pickled snapshots/replies to the original stdout; anything else printed goes to stderr.
+    SIGINT/SIGTERM are ignored (the node asks for the last estimate, then stops us); the end
+    of stdin (the node is gone) ends the process.
+    """
+    import pickle
+    import signal
+    import sys
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    out = os.fdopen(os.dup(sys.stdout.fileno()), 'wb')
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # stray prints must not corrupt frames
+    inp = sys.stdin.buffer
+
+    def put(obj: Any) -> None:
+        pickle.dump(obj, out, protocol=pickle.HIGHEST_PROTOCOL)
+        out.flush()
+
+    try:
+        _, spec, frame_id = pickle.load(inp)
+        serve = _Serve(lambda: make_estimator(spec), frame_id, put)
+        put(('ready',))
+        while serve.handle(pickle.load(inp)):
+            pass
+    except (EOFError, BrokenPipeError):
+        pass
+
+
+class _ChildProcess:
+    """A child Python process running :func:`_child_main`, with queue-like ends.
+
+    A writer thread pickles batches from a bounded :class:`queue.Queue` into the child's
+    stdin (it blocks when the child falls behind, then the queue fills and
+    :meth:`EstimatorRunner.submit` drops); a reader thread unpickles the child's output into
+    an unbounded queue (snapshots are few). ``subprocess`` rather than ``multiprocessing``:
+    spawn would re-import the node's ``__main__`` (rclpy and all) in the child.
+    """
+
+    def __init__(self, spec: tuple[str, str, Any], frame_id: str, max_batches: int):
+        import pickle
+        import subprocess
+        import sys
+        self.proc = subprocess.Popen(
+            [sys.executable, '-m', 'imu_calib_ros.nodes.estimator_runner'],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        self.inq: queue.Queue[Any] = queue.Queue(max_batches)
+        self.outq: queue.Queue[Any] = queue.Queue()
+        pickle.dump(('init', spec, frame_id), self.proc.stdin)
+        self.proc.stdin.flush()
+
+        def write() -> None:
+            try:
+                while True:
+                    msg = self.inq.get()
+                    pickle.dump(msg, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                    self.proc.stdin.flush()
+                    if msg[0] == 'stop':
+                        return
+            except (BrokenPipeError, OSError, ValueError):
+                return
+
+        def read() -> None:
+            try:
+                while True:
+                    msg = pickle.load(self.proc.stdout)
+                    if msg[0] != 'ready':
+                        self.outq.put(msg)
+            except (EOFError, OSError, ValueError, pickle.UnpicklingError):
+                return
+
+        self._threads = [threading.Thread(target=f, daemon=True, name=f'estimator-{f.__name__}')
+                         for f in (write, read)]
+        for t in self._threads:
+            t.start()
+
+    def is_alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def join(self, timeout: float) -> None:
+        try:
+            self.proc.wait(timeout)
+        except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
+            pass
+
+    def terminate(self) -> None:
+        self.proc.kill()
+
+
+class EstimatorRunner:
+    """The estimator behind a bounded queue, in a thread or a child process.
+
+    Parameters
+    ----------
+    mode : {'process', 'thread'}
+    spec : (fixture file, grade name or path, EstimatorConfig)
+        What the estimator is built from (:func:`make_estimator`); in ``'thread'`` mode a
+        ``factory`` may replace it (tests).
+    frame_id : str
+        Frame written into the estimates.
+    max_batches : int
+        Queue bound (batches): a full queue drops the batch (counted in :attr:`dropped`).
+    """
+
+    def __init__(self, mode: str, spec: tuple[str, str, Any] | None, frame_id: str,
+                 max_batches: int = 50, factory: Callable[[], Any] | None = None):
+        if mode not in ('process', 'thread'):
+            raise ValueError(f'estimator mode must be process or thread, got {mode!r}')
+        self.mode = mode
+        self.dropped = 0
+        self.latest: Snapshot | None = None  # newest (may carry health only)
+        self.latest_estimate: Snapshot | None = None  # newest with an estimate
+        self.last_good: Snapshot | None = None  # newest with a finite, not diverged estimate
+        self._token = 0
+        self._replies: set[int] = set()
+        if mode == 'process':
+            assert spec is not None
+            child = _ChildProcess(spec, frame_id, max_batches)
+            self._in: Any = child.inq
+            self._out: Any = child.outq
+            self._worker: Any = child
+        else:
+            self._in = queue.Queue(max_batches)
+            self._out = queue.Queue()
+            fac = factory if factory is not None else (lambda: make_estimator(spec))
+            serve = _Serve(fac, frame_id, self._out.put)
+
+            def loop() -> None:
+                while serve.handle(self._in.get()):
+                    pass
+            self._worker = threading.Thread(target=loop, name='estimator', daemon=True)
+            self._worker.start()
+
+    @property
+    def alive(self) -> bool:
+        """False if the worker died (a crashed child process)."""
+        return bool(self._worker.is_alive())
+
+    def submit(self, items: list[Any]) -> bool:
+        """Queue samples (stamp order, see :meth:`_Serve.push`) for the estimator; False (and
+        the IMU samples counted in :attr:`dropped`) if the queue is full."""
+        if not items:
+            return True
+        try:
+            self._in.put_nowait(('data', items))
+        except queue.Full:
+            self.dropped += sum(1 for s in items if not isinstance(s, JointSample))
+            return False
+        return True
+
+    def command(self, kind: str) -> None:
+        """Send ``reset`` or ``reset_navigation`` without waiting (from a callback)."""
+        self._token += 1
+        try:
+            self._in.put((kind, self._token), timeout=0.1)
+        except queue.Full:
+            pass
+
+    def set_frame_id(self, frame_id: str) -> None:
+        """Frame written into later estimates."""
+        self._in.put(('frame_id', frame_id))
+
+    def poll(self) -> Snapshot | None:
+        """Take everything the worker posted; returns the latest snapshot (or None)."""
+        while True:
+            try:
+                msg = self._out.get_nowait()
+            except queue.Empty:
+                return self.latest
+            self._take(msg)
+
+    def _take(self, msg: tuple[Any, ...]) -> None:
+        if msg[0] == 'reply':
+            self._replies.add(msg[1])
+            return
+        snap: Snapshot = msg[1]
+        self.latest = snap
+        if snap.result is not None:
+            self.latest_estimate = snap
+            if not snap.diverged:
+                self.last_good = snap
+
+    def request(self, kind: str, timeout_s: float, flush: bool = False) -> bool:
+        """Send a command (``reset``, ``reset_navigation``, ``estimate``) and wait for it.
+
+        Blocks the caller up to ``timeout_s`` (services and shutdown only); data queued
+        before the command is processed first (FIFO). Returns False on timeout.
+        """
+        self._token += 1
+        token = self._token
+        msg = (kind, token, flush) if kind == 'estimate' else (kind, token)
+        end = time.monotonic() + timeout_s
+        try:
+            self._in.put(msg, timeout=max(end - time.monotonic(), 0.01))
+        except queue.Full:
+            return False
+        while token not in self._replies:
+            left = end - time.monotonic()
+            if left <= 0 or not self.alive:
+                return False
+            try:
+                self._take(self._out.get(timeout=min(left, 0.5)))
+            except queue.Empty:
+                continue
+        self._replies.discard(token)
+        return True
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the worker (the queue is dropped)."""
+        try:
+            self._in.put(('stop',), timeout=1.0)
+        except queue.Full:
+            pass
+        self._worker.join(timeout_s)
+        if self.mode == 'process' and self._worker.is_alive():
+            self._worker.terminate()
+            self._worker.join(2.0)
+
+
+def finite_or_none(x: float) -> float | None:
+    """``x`` if finite else None (diagnostics never carry a NaN)."""
+    return x if math.isfinite(x) else None
+
+
+if __name__ == '__main__':
+    # run the copy imported under the package name, so that pickled Snapshots refer to
+    # imu_calib_ros.nodes.estimator_runner.Snapshot, not __main__.Snapshot
+    from imu_calib_ros.nodes.estimator_runner import _child_main as _main
+    _main()

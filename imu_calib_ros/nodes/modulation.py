@@ -1,0 +1,140 @@
+"""``modulation`` node: live rotation demodulation (MEMS paper; METHODS.md section 3).
+
+Subscribes ``imu/data_raw`` (sensor-data QoS) and ``joint_states``; publishes
+``imu/data_body``: the IMU stream in the platform-base frame b with the modulated X/Y biases
+removed and the platform rate taken out of the gyro. ``mode:=continuous`` (default) outputs
+every sample (causal de-rotation, full IMU rate); ``one | two | four`` the paper's
+control-point variants (1, 2 or 4 outputs per revolution). All arithmetic is
+:class:`~imu_calib_ros.core.methods.modulation.StreamingDemodulator` (equal to the offline
+``imu-calib modulate`` with causal bias); output starts after the first full revolution.
+
+Run: ``modulation --ros-args -p fixture:=three_axis -p joint:=inner [-p mode:=four]``.
+Spun by :func:`~imu_calib_ros.nodes.common.run_node` with a SingleThreadedExecutor: under
+rclpy's experimental EventsExecutor (this Jazzy build) the node matched its topics but no
+callback ever ran and SIGINT was ignored (found with a faulthandler stack dump: the
+process sat in the C++ spin at ~50 % CPU), hence no output and no counters log. The IMU
+subscription is best effort (sensor-data QoS) unless overridden with
+``-p qos_overrides./imu/data_raw.subscription.reliability:=reliable`` (lossless with a
+reliable publisher: a best-effort reader loses the samples sent while discovery is still
+completing, seen as ~100 of 700 missing at the start of a burst).
+"""
+from __future__ import annotations
+
+import sys
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import Imu, JointState
+
+from ..core.errors import ConfigError
+from ..core.fixture import load_fixture
+from ..core.methods.modulation import MODES, StreamingDemodulator
+from ..msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
+from .common import declare_config, finite, reliable_qos, run_node, sensor_qos
+
+NODE_NAME = 'modulation'
+
+
+@dataclass(frozen=True)
+class ModulationConfig:
+    """Parameters of the modulation node."""
+
+    fixture: str = field(default='', metadata={
+        'doc': 'fixture name or YAML path (CONTRACT 2): the modulation joint axis; required'})
+    joint: str = field(default='', metadata={
+        'doc': 'modulation joint name; empty = the innermost joint'})
+    mode: str = field(default='continuous', metadata={
+        'doc': 'continuous (full rate) or one | two | four (control points per revolution)'})
+    frame_id: str = field(default='', metadata={
+        'doc': 'output header.frame_id; empty = input frame + "_body"'})
+    queue_depth: int = field(default=100, metadata={
+        'doc': 'subscriber queue depth', 'min': 1, 'max': 100000})
+    max_pending: int = field(default=2000, metadata={
+        'doc': 'IMU samples held while waiting for joint states', 'min': 1, 'max': 1000000})
+
+
+class ModulationNode(Node):
+    """Thin shell: messages in, StreamingDemodulator, messages out."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        cfg: ModulationConfig = declare_config(self, ModulationConfig)
+        self.config = cfg
+        if not cfg.fixture:
+            raise ConfigError('set the fixture: -p fixture:=NAME_OR_PATH', 'ROS parameters',
+                              'fixture')
+        if cfg.mode != 'continuous' and cfg.mode not in MODES:
+            raise ConfigError(f'mode must be continuous, one, two or four, got {cfg.mode!r}',
+                              'ROS parameters', 'mode')
+        fx = load_fixture(cfg.fixture)
+        joint = cfg.joint or fx.joint_names[-1]
+        if joint not in fx.joint_names:
+            raise ConfigError(f'joint {joint!r} is not a fixture joint {list(fx.joint_names)}',
+                              'ROS parameters', 'joint')
+        self._fixture, self._k = fx, fx.joint_index(joint)
+        self._joint = joint
+        self.demod: StreamingDemodulator | None = None  # axis needs the other joints' angles
+        self.rejected = {'non_finite': 0}
+        self._early: deque = deque(maxlen=cfg.max_pending)
+        self._pub = self.create_publisher(Imu, 'imu/data_body', reliable_qos(cfg.queue_depth))
+        # sensor-data QoS matches any IMU driver; a lost sample shortens the revolution mean
+        # (counted as a gap), so with a reliable driver make it lossless with the standard
+        # override -p qos_overrides./imu/data_raw.subscription.reliability:=reliable
+        self._sub_imu = self.create_subscription(
+            Imu, 'imu/data_raw', self._on_imu, sensor_qos(cfg.queue_depth),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._sub_joints = self.create_subscription(JointState, 'joint_states',
+                                                    self._on_joints,
+                                                    reliable_qos(cfg.queue_depth))
+        self.get_logger().info(f'demodulating joint {joint!r}, mode {cfg.mode}')
+
+    def _on_joints(self, msg: JointState) -> None:
+        s = joint_sample_from_msg(msg)
+        if self.demod is None:
+            if not all(n in s.names for n in self._fixture.joint_names):
+                return
+            q = np.array([s.positions_rad[s.names.index(n)] for n in self._fixture.joint_names])
+            q[self._k] = 0.0
+            axis = self._fixture.joint_axes_imu(q)[self._k]
+            self.demod = StreamingDemodulator(axis, self._joint, self.config.mode,
+                                              self.config.max_pending)
+            # IMU samples that came before the first joint state (the two topics are not
+            # ordered against each other): feed them first, as offline
+            early, self._early = self._early, deque()
+            for e in early:
+                self._publish(self.demod.push_imu(e))
+        self._publish(self.demod.push_joint(s))
+
+    def _on_imu(self, msg: Imu) -> None:
+        s = imu_sample_from_msg(msg)
+        if not finite(s.gyro_rad_s, s.accel_m_s2):
+            self.rejected['non_finite'] += 1
+            self.get_logger().warn('dropped non-finite IMU sample', throttle_duration_sec=5.0)
+            return
+        if self.demod is not None:
+            self._publish(self.demod.push_imu(s))
+        else:
+            self._early.append(s)
+
+    def destroy_node(self) -> None:
+        """Log the counters, then stop."""
+        counters = self.demod.counters if self.demod is not None else {}
+        self.get_logger().info(f'counters: {counters}, rejected: {self.rejected}')
+        super().destroy_node()
+
+    def _publish(self, samples: list) -> None:
+        for s in samples:
+            fid = self.config.frame_id or f'{s.frame_id}_body'
+            self._pub.publish(imu_msg_from_sample(s, Imu, frame_id=fid))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``modulation``."""
+    return run_node(ModulationNode, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
