@@ -24,23 +24,22 @@ from typing import Any
 
 import numpy as np
 
-G0 = 9.80665  # m/s^2 per g (engineering unit only)
-ARCSEC = np.pi / 180 / 3600
-DEG_H = np.pi / 180 / 3600  # rad/s per deg/h
+from .core.sensor_model import KEY_OF_FIELD as CONTRACT_KEY
+from .core.units import DEG_H_RAD_S as DEG_H, G0_M_S2 as G0, URAD
 
 #: (label, SensorErrors field, flat indices, unit name, SI value per unit)
 ROWS: list[tuple[str, str, list[int], str, float]] = [
     ('gyro bias', 'gyro_bias_rad_s', [0, 1, 2], 'deg/h', DEG_H),
     ('gyro scale', 'gyro_scale_misalignment', [0, 4, 8], 'ppm', 1e-6),
-    ('gyro misalign yz,xz,xy', 'gyro_scale_misalignment', [5, 2, 1], 'arcsec', ARCSEC),
+    ('gyro misalign yz,xz,xy', 'gyro_scale_misalignment', [5, 2, 1], 'urad', URAD),
     ('gyro asymmetry', 'gyro_scale_asymmetry', [0, 1, 2], 'ppm', 1e-6),
     ('gyro g-sens row x', 'gyro_g_sensitivity_rad_s_per_m_s2', [0, 1, 2], 'deg/h/g', DEG_H / G0),
     ('gyro g-sens row y', 'gyro_g_sensitivity_rad_s_per_m_s2', [3, 4, 5], 'deg/h/g', DEG_H / G0),
     ('gyro g-sens row z', 'gyro_g_sensitivity_rad_s_per_m_s2', [6, 7, 8], 'deg/h/g', DEG_H / G0),
     ('accel bias', 'accel_bias_m_s2', [0, 1, 2], 'ug', 1e-6 * G0),
     ('accel scale', 'accel_scale_misalignment', [0, 4, 8], 'ppm', 1e-6),
-    ('accel misalign yz,xz,xy', 'accel_scale_misalignment', [5, 2, 1], 'arcsec', ARCSEC),
-    ('accel misalign zy,zx,yx', 'accel_scale_misalignment', [7, 6, 3], 'arcsec', ARCSEC),
+    ('accel misalign yz,xz,xy', 'accel_scale_misalignment', [5, 2, 1], 'urad', URAD),
+    ('accel misalign zy,zx,yx', 'accel_scale_misalignment', [7, 6, 3], 'urad', URAD),
     ('accel asymmetry', 'accel_scale_asymmetry', [0, 1, 2], 'ppm', 1e-6),
     ('accel quadratic', 'accel_quadratic_per_m_s2', [0, 1, 2], 'ug/g^2', 1e-6 / G0),
     ('size effect xy,xz,yx', 'size_effect_m', [1, 2, 3], 'mm', 1e-3),
@@ -48,18 +47,6 @@ ROWS: list[tuple[str, str, list[int], str, float]] = [
 ]
 
 
-#: SensorErrors field -> CONTRACT 4 key (as listed under ``fixed``)
-CONTRACT_KEY = {
-    'gyro_bias_rad_s': 'gyroscope.bias',
-    'gyro_scale_misalignment': 'gyroscope.scale_misalignment',
-    'gyro_scale_asymmetry': 'gyroscope.scale_asymmetry',
-    'gyro_g_sensitivity_rad_s_per_m_s2': 'gyroscope.g_sensitivity',
-    'accel_bias_m_s2': 'accelerometer.bias',
-    'accel_scale_misalignment': 'accelerometer.scale_misalignment',
-    'accel_scale_asymmetry': 'accelerometer.scale_asymmetry',
-    'accel_quadratic_per_m_s2': 'accelerometer.quadratic',
-    'size_effect_m': 'accelerometer.size_effect',
-}
 
 
 def comparison_table(estimate: Any, truth: Any) -> tuple[str, int, int]:

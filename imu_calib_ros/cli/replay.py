@@ -17,18 +17,9 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, InputError
+from ..core.units import ENGINEERING
 
-UNITS = (  # CONTRACT 4 key, factor to the engineering unit, unit
-    ('gyroscope.bias', 180 / np.pi * 3600, 'deg/h'),
-    ('gyroscope.scale_misalignment', 1e6, 'ppm|urad'),
-    ('gyroscope.scale_asymmetry', 1e6, 'ppm'),
-    ('gyroscope.g_sensitivity', 180 / np.pi * 3600 * 9.80665, 'deg/h/g'),
-    ('accelerometer.bias', 1e6 / 9.80665, 'ug'),
-    ('accelerometer.scale_misalignment', 1e6, 'ppm|urad'),
-    ('accelerometer.scale_asymmetry', 1e6, 'ppm'),
-    ('accelerometer.quadratic', 1e6 * 9.80665, 'ppm/g'),
-    ('accelerometer.size_effect', 1e3, 'mm'),
-)
+UNITS = tuple((key, 1.0 / si, unit) for key, (_, si, unit) in ENGINEERING.items())
 
 
 def register(subparsers: Any) -> None:

@@ -17,20 +17,12 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
+from ..core.sensor_model import KEY_OF_FIELD  # noqa: E402
+from ..core.units import ENGINEERING, UG_M_S2  # noqa: E402
+
 #: (SensorErrors field, label, factor to engineering units, unit, CONTRACT 4 key)
-ROWS = (
-    ('gyro_bias_rad_s', 'gyro bias', 180 / np.pi * 3600, 'deg/h', 'gyroscope.bias'),
-    ('gyro_scale_misalignment', 'gyro Kg', 1e6, 'ppm/urad', 'gyroscope.scale_misalignment'),
-    ('gyro_scale_asymmetry', 'gyro asym', 1e6, 'ppm', 'gyroscope.scale_asymmetry'),
-    ('gyro_g_sensitivity_rad_s_per_m_s2', 'gyro G', 180 / np.pi * 3600 * 9.80665, 'deg/h/g',
-     'gyroscope.g_sensitivity'),
-    ('accel_bias_m_s2', 'accel bias', 1e6 / 9.80665, 'ug', 'accelerometer.bias'),
-    ('accel_scale_misalignment', 'accel Ka', 1e6, 'ppm/urad',
-     'accelerometer.scale_misalignment'),
-    ('accel_scale_asymmetry', 'accel asym', 1e6, 'ppm', 'accelerometer.scale_asymmetry'),
-    ('accel_quadratic_per_m_s2', 'accel quad', 9.80665e6, 'ug/g^2', 'accelerometer.quadratic'),
-    ('size_effect_m', 'size effect', 1e3, 'mm', 'accelerometer.size_effect'),
-)
+ROWS = tuple((field, ENGINEERING[key][0], 1.0 / ENGINEERING[key][1],
+              ENGINEERING[key][2].replace('|', '/'), key) for field, key in KEY_OF_FIELD.items())
 
 
 def _srt_not_estimated(res: Any) -> set[tuple[str, tuple[int, ...]]] | None:
@@ -60,7 +52,7 @@ def is_fixed(res: Any, fld: str, key: str, idx: tuple[int, ...]) -> bool:
 
 
 #: micro-g per m/s^2 (standard gravity)
-UG_PER_M_S2 = 1e6 / 9.80665
+UG_PER_M_S2 = 1.0 / UG_M_S2
 
 
 def _png(fig: Any) -> str:
