@@ -42,7 +42,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Literal
 
 import numpy as np
@@ -121,6 +121,7 @@ class ImuVerdict:
 
     keep: NDArray[np.bool_]  # (N,) accepted samples
     long_gaps: IntArray  # indices into the *accepted* samples that follow a long gap
+    gaps: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))  # after any gap
 
 
 class InputGuard:
@@ -226,9 +227,9 @@ class InputGuard:
             for i in np.nonzero(counts)[0]:
                 self.rejected[IMU_REASONS[i]] += int(counts[i])
             self.last_event_ns = int(np.maximum(t, prev_max)[~keep].max())
-        long_gaps = self._gaps(t[keep])
+        long_gaps, gaps = self._gaps(t[keep])
         self._log()
-        return ImuVerdict(keep, long_gaps)
+        return ImuVerdict(keep, long_gaps, gaps)
 
     def _check_one(self, t: int, w: FloatArray, f: FloatArray,
                    frame_id: str) -> ImuVerdict | None:
@@ -262,11 +263,12 @@ class InputGuard:
         self.last_kept_ns = t
         return ImuVerdict(np.ones(1, bool), np.zeros(0, np.int64))
 
-    def _gaps(self, kt: IntArray) -> IntArray:
-        """Flag gaps among the accepted stamps ``kt``; indices of the long ones."""
+    def _gaps(self, kt: IntArray) -> tuple[IntArray, IntArray]:
+        """Flag gaps among the accepted stamps ``kt``; indices of the long ones and of all."""
         cfg = self.config
+        none = np.zeros(0, np.int64)
         if not len(kt):
-            return np.zeros(0, np.int64)
+            return none, none
         prev = np.concatenate([[kt[0] if self.last_kept_ns is None else self.last_kept_ns],
                                kt[:-1]])
         dt = kt - prev
@@ -281,15 +283,17 @@ class InputGuard:
             if len(self._dts) >= 8:
                 self.nominal_period_ns = int(np.median(self._dts))
         long_ = np.nonzero(dt > cfg.max_gap_s * 1e9)[0] + off
+        all_ = none
         if self.nominal_period_ns is not None:
             is_gap = np.nonzero(dt > cfg.gap_periods * self.nominal_period_ns)[0]
             if is_gap.size:
                 self.flagged['gap'] += int(is_gap.size)
                 self.last_event_ns = int(kt[is_gap[-1] + off])
+                all_ = (is_gap + off).astype(np.int64)
         if long_.size:
             self.flagged['long_gap'] += int(long_.size)
             self.last_event_ns = int(kt[long_[-1]])
-        return long_.astype(np.int64)
+        return long_.astype(np.int64), all_
 
     def _check_gyro_units(self, t: IntArray, w: FloatArray, reason: NDArray[np.int64]) -> None:
         """Compare |gyro| with the encoder-derived rate magnitude (deg/s signature = 180/pi)."""

@@ -442,18 +442,26 @@ class CalibrationEstimator:
         if not keep.any():
             return
         t, w, f = t[keep], w[keep], f[keep]
-        gaps = [int(i) for i in verdict.long_gaps]
+        # A long gap applies gap_policy; a short gap (> gap_periods nominal periods) during
+        # which the table turned also loses the turn (CONTRACT 1), which no navigator can
+        # bridge: it re-initialises the navigation too (calibration states are kept).
+        gaps = {int(i) for i in verdict.long_gaps}
+        gaps.update(int(i) for i in verdict.gaps)
+        long_gaps = {int(i) for i in verdict.long_gaps}
         bounds = sorted({0, *gaps, len(t)})
         for a, b in zip(bounds[:-1], bounds[1:]):
             if a in gaps and self._last_imu_stamp is not None:
-                self._on_gap(self._last_imu_stamp, int(t[a]))
+                t_before, t_after = self._last_imu_stamp, int(t[a])
+                if a in long_gaps or not self._joints_still(t_before, t_after):
+                    self._on_gap(t_before, t_after)
             # one block at a time, so that divergence is checked after every block
             i = a
             while i < b and self._diverged is None:
                 step = self.config.block_chunks * self._n if self._running else 1000
-                self._append_imu(t[i:i + step], w[i:i + step], f[i:i + step])
+                j = min(i + step, b)  # never past the next gap
+                self._append_imu(t[i:j], w[i:j], f[i:j])
                 self._advance()
-                i += step
+                i = j
             if self._diverged is not None and i < len(t):
                 self._guard.rejected['filter_diverged'] += len(t) - i
                 return
@@ -487,7 +495,8 @@ class CalibrationEstimator:
             self._kept_cal_P = None
 
     def _on_gap(self, t_before_ns: int, t_after_ns: int) -> None:
-        """A gap longer than ``guard_config.max_gap_s`` between two accepted samples.
+        """A gap longer than ``guard_config.max_gap_s`` between two accepted samples, or a
+        shorter one during which the joints moved (or whose joint data is not there yet).
 
         The data before the gap is processed first (a partial chunk at its end is dropped and
         counted in ``imu_dropped_at_gap``). Policy ``'bridge'`` (only when the joints did not
