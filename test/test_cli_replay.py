@@ -48,7 +48,7 @@ def test_replay_matches_truth_within_sigma(bag: Path) -> None:
     (['--fixture', 'no_such_fixture'], 'no_such_fixture'),
     (['--fixture', 'three_axis', '--imu-topic', '/nope'], '/nope'),
     (['--fixture', 'three_axis', '--iterations', '0'], 'iterations'),
-    (['--fixture', 'three_axis', '--method', 'magic'], 'magic'),
+    (['--fixture', 'three_axis', '--method', 'oscillation'], 'oscillation'),
 ])
 def test_bad_arguments_one_line_no_output(bag: Path, capsys, args, words) -> None:
     out = bag / 'bad.yaml'
@@ -57,3 +57,47 @@ def test_bad_arguments_one_line_no_output(bag: Path, capsys, args, words) -> Non
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and words in err, err
     assert not out.exists()
+
+
+def test_unknown_method_is_an_argparse_choice(bag: Path, capsys) -> None:
+    out = bag / 'bad.yaml'
+    with pytest.raises(SystemExit) as exc:
+        main(['replay', str(bag / 'bag'), '--output', str(out), '--fixture', 'three_axis',
+              '--method', 'magic'])
+    assert exc.value.code != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert 'magic' in err[-1] and 'oscillation' in err[-1], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize('method', ['srt', 'oscillation'])
+@pytest.mark.parametrize('exc', [RuntimeError('compensate did not converge in 50 iterations'),
+                                 np.linalg.LinAlgError('Singular matrix'),
+                                 ValueError('kozlov_c: period must be > 0')])
+def test_method_failure_one_line_no_output(bag: Path, capsys, monkeypatch, method,
+                                           exc) -> None:
+    """CONTRACT 5: whatever a method raises on data it cannot use ends as one line naming
+    the method and the cause, a non-zero exit, and no output file."""
+    from imu_calib_ros.core.methods import oscillation, srt
+
+    def fail(*_a, **_k):
+        raise exc
+
+    monkeypatch.setattr({'srt': srt, 'oscillation': oscillation}[method], 'calibrate', fail)
+    out = bag / f'fail_{method}.yaml'
+    assert main(['replay', str(bag / 'bag'), '--fixture', 'three_axis', '--output', str(out),
+                 '--method', method, '--quiet']) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert method in err and str(exc) in err and 'plan' in err, err
+    assert not out.exists()
+
+
+def test_every_sub_command_is_registered() -> None:
+    """The dispatcher imports every sub-command module (none is skipped silently)."""
+    import argparse
+
+    from imu_calib_ros.cli import SUBCOMMANDS, build_parser
+    sub = [a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    assert list(sub[0].choices) == list(SUBCOMMANDS)
+    assert {'simulate', 'replay', 'report', 'modulate'} <= set(SUBCOMMANDS)

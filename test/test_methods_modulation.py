@@ -78,3 +78,30 @@ def test_points_rate_and_bias(mode, n):
     np.testing.assert_allclose(out.gyro_rad_s[:, :2], 0.0, atol=1e-6)
     # platform rate removed from the axial gyro: what remains is its bias
     np.testing.assert_allclose(out.gyro_rad_s[:, 2], bw[2], atol=1e-6)
+
+
+def test_continuous_after_a_gap_uses_the_nominal_period():
+    """CONTRACT 1: the sample after a dropped stretch (0.3 s = 45 deg of spin) is the mean over
+    its own nominal period only, so its joint-angle interval is one period of spin, not the
+    gap's 45 deg (de-rotating over those would shrink it). Away from the gap (more than one
+    revolution) the output is the noise-free one of the test above (1e-6)."""
+    axis = np.array([0.0, 0.0, 1.0])
+    f_b = np.array([0.3, -0.2, G])
+    w_b = np.array([1e-3, -2e-3, 5e-4])
+    bf = np.array([0.05, -0.08, 0.02])
+    bw = np.array([3e-3, -2e-3, 1e-3])
+    imu, joints = _data(axis, f_b, w_b, bf, bw, duration_s=20.0)
+    keep = np.ones(len(imu), bool)
+    keep[1000:1030] = False
+    gapped = ImuBatch(imu.stamps_ns[keep], imu.gyro_rad_s[keep], imu.accel_m_s2[keep], 'imu')
+    after = 1000  # index of the first sample after the gap in ``gapped``
+    _, phi0, phi1, _ = modulation._setup(gapped, joints, _fixture(axis), None)
+    np.testing.assert_allclose(phi1[after] - phi0[after], SPIN_RAD_S / RATE_HZ, rtol=1e-6)
+    out = modulation.demodulate_continuous(gapped, joints, _fixture(axis))
+    # the biases' revolution mean misses the lost 45 deg near the gap (the data is lost)
+    rev = int(2 * np.pi / SPIN_RAD_S * RATE_HZ) + 5
+    far = np.r_[50:after - rev, after + rev:len(out) - 50]
+    np.testing.assert_allclose(out.accel_m_s2[far], np.broadcast_to(f_b + axis * (axis @ bf),
+                                                                      (far.size, 3)), atol=1e-6)
+    np.testing.assert_allclose(out.gyro_rad_s[far], np.broadcast_to(w_b + axis * (axis @ bw),
+                                                                     (far.size, 3)), atol=1e-6)

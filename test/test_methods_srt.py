@@ -129,3 +129,11 @@ def test_recovers_simulated_truth():
     assert np.all(s_ba < np.hypot(grade.accel_bias_instability_m_s2, 1.5e-5))
     # re-play converged (sect. 8): last correction negligible
     assert extra['srt']['iterations'][-1]['max_abs_correction'] < 1e-9
+
+
+def test_sample_intervals_follow_the_gap_rule():
+    """CONTRACT 1: the sample after a dropped stretch integrates over one nominal period (the
+    stamp difference would turn its rate by the whole gap's angle in the DCM of eq. 2)."""
+    stamps = np.r_[np.arange(1, 101), np.arange(151, 201)].astype(np.int64) * 10_000_000
+    dt = srt._dt(stamps)
+    np.testing.assert_allclose(dt, np.full(stamps.size, 0.01), rtol=1e-12)

@@ -307,3 +307,21 @@ def test_compensate_non_finite_sample_is_nan_and_leaves_others() -> None:
     assert np.all(np.isnan(w2[bad])) and np.all(np.isnan(f2[bad]))
     np.testing.assert_allclose(w2[~bad], w[~bad], rtol=0, atol=1e-12 * np.max(np.abs(w)))
     assert all(np.isnan(v) for v in compensate_one(e, gm[5], am[5], wd[5])[0])
+
+
+def test_mean_rate_derivative_not_across_a_gap() -> None:
+    """CONTRACT 1: after a gap the rates jump (a step in the lost stretch); the derivative is
+    taken per stretch (one-sided at its ends), so the step never shows up as omega_dot, and a
+    lone sample between two gaps gets zero. A linear ramp is exact inside each stretch."""
+    dt_ns = 5_000_000
+    k = np.r_[1:41, 61:62, 81:121]  # gaps before samples 61 and 81: sample 61 is alone
+    stamps = k * dt_ns + 7_000_000_000
+    t = (stamps - stamps[0]) * 1e-9
+    slope = np.array([0.5, -1.0, 2.0])
+    w = t[:, None] * slope + np.where(k > 60, 3.0, 0.0)[:, None]  # +3 rad/s step in the gap
+    for causal in (False, True):
+        got = mean_rate_derivative(stamps, w, causal=causal)
+        lone = int(np.flatnonzero(k == 61)[0])
+        np.testing.assert_allclose(np.delete(got, lone, axis=0),
+                                   np.broadcast_to(slope, (len(k) - 1, 3)), atol=1e-9)
+        np.testing.assert_array_equal(got[lone], 0.0)

@@ -12,22 +12,16 @@ import sys
 
 from ..core.errors import ImuCalibError
 
-SUBCOMMANDS = ('simulate', 'replay', 'report', 'modulate', 'drive')
+SUBCOMMANDS = ('simulate', 'replay', 'report', 'modulate')
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every available sub-command."""
+    """The top-level parser with every sub-command."""
     parser = argparse.ArgumentParser(
         prog='imu-calib', description='Turntable IMU calibration (imu_calib_ros).')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name in SUBCOMMANDS:
-        try:
-            module = importlib.import_module(f'{__name__}.{name}')
-        except ModuleNotFoundError as exc:
-            if exc.name == f'{__name__}.{name}':
-                continue  # sub-command not built yet
-            raise
-        module.register(sub)
+        importlib.import_module(f'{__name__}.{name}').register(sub)
     return parser
 
 

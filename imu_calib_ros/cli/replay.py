@@ -4,21 +4,21 @@
                      [--imu GRADE] [--config EST.yaml] [--iterations N] [--method ekf]
 
 CONTRACT 5: exit 0 on success; on unusable input one clear line, non-zero exit, and no
-(partial) output file. ``--method srt|oscillation`` dispatches to
-``imu_calib_ros.core.methods.<name>.calibrate`` when that module exists.
+(partial) output file. ``--method srt|oscillation`` runs
+``imu_calib_ros.core.methods.<name>.calibrate`` on the whole bag.
 """
 from __future__ import annotations
 
-import importlib
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, InputError
+from ..core.errors import InputError
 from ..core.units import ENGINEERING
 
+METHODS = ('ekf', 'srt', 'oscillation')
 UNITS = tuple((key, 1.0 / si, unit) for key, (_, si, unit) in ENGINEERING.items())
 
 
@@ -38,9 +38,9 @@ def register(subparsers: Any) -> None:
                    help='estimator config (default: config/estimator.yaml defaults)')
     p.add_argument('--iterations', type=int, default=2, metavar='N',
                    help='passes over the bag (Savage sect. 8), >= 1 (default 2)')
-    p.add_argument('--method', default='ekf', metavar='NAME',
-                   help='ekf (default), or a module of imu_calib_ros.core.methods (srt, '
-                        'oscillation)')
+    p.add_argument('--method', default='ekf', choices=METHODS,
+                   help='ekf: augmented-state EKF (default); srt: Savage\'s SRT processor; '
+                        'oscillation: Kozlov & Kapralov\'s harmonic oscillations')
     p.add_argument('--quiet', action='store_true', help='no progress bar or summary')
     p.set_defaults(func=run)
 
@@ -77,15 +77,17 @@ def run(args: Any) -> int:
     if not Path(args.bag).exists():
         raise InputError(f'bag {args.bag} does not exist')
     if args.method != 'ekf':
-        try:
-            mod = importlib.import_module(f'imu_calib_ros.core.methods.{args.method}')
-        except ModuleNotFoundError:
-            raise InputError(f'--method {args.method}: no such method (ekf, srt, '
-                             'oscillation)') from None
-        if not hasattr(mod, 'calibrate'):
-            raise InputError(f'--method {args.method}: module has no calibrate()')
+        from ..core.methods import oscillation, srt
+        method = {'srt': srt.calibrate, 'oscillation': oscillation.calibrate}[args.method]
         imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
-        calib = mod.calibrate(imu, joints, fixture, grade)
+        try:
+            calib = method(imu, joints, fixture, grade)
+        except (RuntimeError, ValueError, ArithmeticError) as exc:
+            # a non-converging compensation, a rank-deficient least squares (LinAlgError
+            # is a ValueError), a degenerate fit: CONTRACT 5 wants one line, not a traceback
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise InputError(f'--method {args.method}: {msg} (does the bag {args.bag} contain '
+                             f'the plan this method needs?)') from exc
     else:
         from ..core.estimator import load_estimator_config
         from ..core.estimator.replay import replay
@@ -103,10 +105,7 @@ def run(args: Any) -> int:
             if bar is not None:
                 bar.close()
         calib = est.estimate()
-    try:
-        calib.save(out)
-    except ConfigError:
-        raise
+    calib.save(out)
     if not args.quiet:
         print(_summary(calib))
         print(f'wrote {out}')

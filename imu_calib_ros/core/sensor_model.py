@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import require_mapping
 from .errors import ConfigError
+from .types import sample_intervals_ns
 
 FloatArray = NDArray[np.float64]
 
@@ -329,6 +330,8 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     (possibly uneven) stamps, second-order one-sided at both ends (:func:`numpy.gradient`).
     ``causal=True``: backward difference (mean rate k minus mean rate k-1), which refers
     to the time half a sample earlier; the first sample gets the first difference.
+    Never across a gap (CONTRACT 1, :func:`~.types.sample_intervals_ns`): each stretch
+    between gaps is differentiated on its own (one-sided at its ends, zero for a lone sample).
 
     Parameters
     ----------
@@ -353,10 +356,25 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     dt = np.diff(t_s)
     if np.any(dt <= 0):
         raise ValueError('stamps must be strictly increasing')
+    is_gap = sample_intervals_ns(stamps)[1]
     if causal:
-        d = np.diff(w, axis=0) / dt[:, None]
-        return np.concatenate([d[:1], d], axis=0)
-    return np.asarray(np.gradient(w, t_s, axis=0, edge_order=2 if n > 2 else 1))
+        d = np.concatenate([np.zeros((1, 3)), np.diff(w, axis=0) / dt[:, None]], axis=0)
+        first = np.flatnonzero(np.concatenate([[True], is_gap[1:]]))  # stretch starts
+        nxt = first + 1
+        ok = nxt < n
+        ok[ok] &= ~is_gap[nxt[ok]]  # the stretch has a second sample
+        d[first] = 0.0
+        d[first[ok]] = d[nxt[ok]]
+        return d
+    out = np.empty_like(w)
+    # stretches between gaps; a Python loop over them (gaps are rare in a recording)
+    for seg in np.split(np.arange(n), np.flatnonzero(is_gap)):
+        if seg.size < 2:
+            out[seg] = 0.0
+        else:
+            out[seg] = np.gradient(w[seg], t_s[seg], axis=0,
+                                   edge_order=2 if seg.size > 2 else 1)
+    return out
 
 
 # ----------------------------------------------------------------------------- compensation

@@ -86,3 +86,51 @@ class JointBatch:
     def __iter__(self):
         for i in range(len(self)):
             yield self.sample(i)
+
+
+#: CONTRACT 1: an interval longer than this many nominal periods follows a gap.
+GAP_PERIODS = 1.5
+
+
+def sample_intervals_ns(stamps_ns: NDArray[np.int64], nominal_ns: float | None = None,
+                        gap_periods: float = GAP_PERIODS,
+                        ) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """The averaging interval of each sample, with CONTRACT 1's gap rule.
+
+    A sample whose interval to the previous sample is longer than ``gap_periods`` nominal
+    periods follows a gap: it is the mean over its own nominal period only, so its interval
+    is the nominal one. The first sample, with no predecessor, also gets the nominal period.
+    Differences are taken in int64 first: absolute stamps (~1.7e18 ns) in float64 resolve
+    only 256 ns.
+
+    Parameters
+    ----------
+    stamps_ns : (N,) int
+        Increasing stamps [ns].
+    nominal_ns : float, optional
+        Nominal sample period [ns]; default the median stamp difference.
+    gap_periods : float
+        Gap threshold in nominal periods (CONTRACT 1: 1.5).
+
+    Returns
+    -------
+    intervals_ns : ndarray, shape (N,), float
+        Interval of each sample [ns].
+    is_gap : ndarray, shape (N,), bool
+        True for the samples that follow a gap.
+    """
+    stamps = np.asarray(stamps_ns, np.int64)
+    if stamps.ndim != 1:
+        raise ValueError(f'stamps (N,) expected, got shape {stamps.shape}')
+    d = np.diff(stamps).astype(float)
+    if nominal_ns is None:
+        if d.size == 0:
+            if stamps.size == 0:
+                return np.zeros(0), np.zeros(0, bool)
+            raise ValueError('one stamp: give nominal_ns, its interval is unknown')
+        nominal_ns = float(np.median(d))
+    nominal_ns = float(nominal_ns)
+    is_gap = np.concatenate([[False], d > gap_periods * nominal_ns])[:stamps.size]
+    intervals = np.concatenate([[nominal_ns], d])[:stamps.size]
+    intervals[is_gap] = nominal_ns
+    return intervals, is_gap

@@ -83,11 +83,20 @@ def trajectory_from_profile(profile: Any, point_period_s: float,
         ts = float(tk) + lead_in_s
         if ts <= 0.0:
             continue  # the start state is where the table is; not a point to reach
-        sec = int(math.floor(ts))
         msg.points.append(JointTrajectoryPoint(
             positions=q[k].tolist(), velocities=qd[k].tolist(), accelerations=qdd[k].tolist(),
-            time_from_start=Duration(sec=sec, nanosec=int(round((ts - sec) * 1e9)) % 10**9)))
+            time_from_start=duration_from_seconds(ts)))
     return msg
+
+
+def duration_from_seconds(t_s: float) -> Duration:
+    """``builtin_interfaces/Duration`` of ``t_s`` >= 0 seconds, rounded to the nanosecond.
+
+    Rounded once in integer nanoseconds, so a fraction that rounds up to a whole second
+    carries into ``sec`` (2.9999999999 s -> 3 s 0 ns, not 2 s 0 ns).
+    """
+    sec, nanosec = divmod(int(round(t_s * 1e9)), 10**9)
+    return Duration(sec=sec, nanosec=nanosec)
 
 
 class TurntableDriverNode(Node):

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..rotation import rot_axis_angle
-from ..types import ImuBatch, JointBatch
+from ..types import GAP_PERIODS, ImuBatch, JointBatch, sample_intervals_ns
 from .windows import joint_positions
 
 FloatArray = NDArray[np.float64]
@@ -49,7 +49,7 @@ def _setup(imu: ImuBatch, joints: JointBatch, fixture: Any, joint: str | None,
         k = names.index(joint)
     tj = (joints.stamps_ns - joints.stamps_ns[0]) * 1e-9
     ti = (imu.stamps_ns - joints.stamps_ns[0]) * 1e-9
-    dt = np.diff(ti, prepend=ti[0] - float(np.median(np.diff(ti))))
+    dt = _intervals_ns(imu.stamps_ns) * 1e-9
     phi_end = np.interp(ti, tj, q[:, k])
     phi_start = np.interp(ti - dt, tj, q[:, k])
     if abs(phi_end[-1] - phi_end[0]) < 2 * np.pi:
@@ -61,10 +61,9 @@ def _setup(imu: ImuBatch, joints: JointBatch, fixture: Any, joint: str | None,
 
 
 def _intervals_ns(stamps_ns: NDArray[np.int64]) -> FloatArray:
-    """Sample intervals [ns] as floats; the first gets the median. Differences are taken in
-    int64 first: absolute stamps (~1.7e18 ns) in float64 resolve only 256 ns."""
-    d = np.diff(np.asarray(stamps_ns, np.int64)).astype(float)
-    return np.concatenate([[np.median(d)], d])
+    """Sample averaging intervals [ns] as floats: the first sample and a sample after a gap
+    get the nominal (median) period (CONTRACT 1)."""
+    return sample_intervals_ns(stamps_ns)[0]
 
 
 def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: FloatArray,
@@ -282,7 +281,7 @@ class StreamingDemodulator:
             # the first sample gets the first interval (offline: the median interval)
             self._pending.append((self._first, dt))
             self._first = None
-        elif dt > 1.5 * self._dt_nom_ns:  # CONTRACT 1: after a gap, its own period only
+        elif dt > GAP_PERIODS * self._dt_nom_ns:  # CONTRACT 1: after a gap, its own period only
             self.counters['gaps'] += 1
             dt = int(round(self._dt_nom_ns))
         self._last_stamp = int(sample.stamp_ns)

@@ -63,7 +63,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from ..kozlov import kozlov_c, kozlov_difference_factor, size_effect_mean_acceleration_enu
-from ..types import ImuBatch, JointBatch
+from ..types import ImuBatch, JointBatch, sample_intervals_ns
 from .windows import Window, joint_positions, stationary_windows
 
 FloatArray = NDArray[np.float64]
@@ -328,7 +328,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     arw, vrw = noise_densities(imu.stamps_ns, omega, f, windows)
     g = float(fixture.site.gravity)
     t_all = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
-    dt_all = np.diff(t_all, prepend=t_all[0] - float(np.median(np.diff(t_all))))
+    dt_all = sample_intervals_ns(imu.stamps_ns)[0] * 1e-9  # CONTRACT 1 gap rule
     info: list[dict[str, Any]] = []
     per_cycle: list[tuple[Cycle, FloatArray, float, FloatArray]] = []
     z = np.array([0.0, 0.0, 1.0])

@@ -42,7 +42,7 @@ from scipy.spatial.transform import Rotation
 from ..earth import EARTH_RATE_RAD_S
 from ..errors import InputError
 from ..sensor_model import KEY_OF_FIELD
-from ..types import ImuBatch, JointBatch
+from ..types import ImuBatch, JointBatch, sample_intervals_ns
 from .windows import Window, stationary_windows
 
 FloatArray = NDArray[np.float64]
@@ -213,9 +213,8 @@ def find_sequences(stamps_ns: NDArray[np.int64], omega_rad_s: FloatArray,
 
 
 def _dt(stamps_ns: NDArray[np.int64]) -> FloatArray:
-    d = np.diff(np.asarray(stamps_ns, np.int64)) * 1e-9
-    nominal = float(np.median(d)) if d.size else 0.01
-    return np.concatenate([[nominal], d])
+    """Averaging interval of each sample [s] (CONTRACT 1: nominal period after a gap)."""
+    return sample_intervals_ns(stamps_ns)[0] * 1e-9
 
 
 # ----------------------------------------------------------------------------- measurements
