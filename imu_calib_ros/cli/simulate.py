@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.imu_grade import load_grade
     from ..core.plans import build_profile, load_plan
     from ..core.sensor_model import SensorErrors
-    from ..msg_adapters.bag import write_bag
+    from ..msg_adapters.bag import remove_bag, write_bag
 
     fixture = load_fixture(args.fixture)
     plan = load_plan(args.plan)
@@ -197,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             os.replace(tmp_truth, truth_path)
         except OSError as exc:
-            _remove_bag(output)
+            remove_bag(output)
             raise ConfigError(f'cannot write truth file ({exc.strerror})',
                               str(truth_path)) from None
     finally:
@@ -208,17 +208,6 @@ def run(args: argparse.Namespace) -> int:
     print(f'wrote {output} ({len(imu)} IMU + {len(result.joints)} joint msgs, '
           f'{profile.duration_s:.1f} s, simulated in {t_sim:.1f} s) and {truth_path}')
     return 0
-
-
-def _remove_bag(path: Path) -> None:
-    import shutil
-    if path.is_dir():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        try:
-            path.unlink()
-        except FileNotFoundError:
-            pass
 
 
 __all__ = ['register', 'run', 'truth_path_for']

@@ -706,7 +706,8 @@ def _temp_sibling(path: Path, what: str) -> Path:
     return path.with_name(f'.{path.name}.{what}-{os.getpid()}-{uuid.uuid4().hex[:8]}')
 
 
-def _remove(path: Path) -> None:
+def remove_bag(path: Path) -> None:
+    """Remove a bag directory or file (or a partial one); a missing path is fine."""
     if path.is_dir() and not path.is_symlink():
         shutil.rmtree(path, ignore_errors=True)
     else:
@@ -731,7 +732,7 @@ def _install(tmp: Path, path: Path, overwrite: bool) -> None:
             os.rename(old, path)
         raise
     if old is not None:
-        _remove(old)
+        remove_bag(old)
 
 
 def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
@@ -837,16 +838,16 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
                 raise BagError(f'{p}: expected one .mcap file from the writer, got {files}')
             result = files[0]
         _install(result, p, overwrite)
-        _remove(tmp)
+        remove_bag(tmp)
     except BagError:
-        _remove(tmp)
+        remove_bag(tmp)
         raise
     except Exception as exc:
-        _remove(tmp)
+        remove_bag(tmp)
         raise BagError(f'{p}: cannot write bag ({type(exc).__name__}: {_oneline(exc)})') \
             from None
     except BaseException:
-        _remove(tmp)
+        remove_bag(tmp)
         raise
     return p
 
@@ -861,4 +862,4 @@ def imu_msg_bytes(sample: ImuSample, frame_id: str | None = None,
 
 __all__ = ['BagSamples', 'DEFAULT_IMU_TOPIC', 'DEFAULT_JOINT_TOPIC', 'TopicInfo',
            'imu_msg_bytes', 'iter_bag', 'iter_bag_batches', 'list_topics', 'read_bag',
-           'write_bag']
+           'remove_bag', 'write_bag']
