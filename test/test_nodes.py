@@ -259,3 +259,120 @@ def test_estimates_converge_on_a_short_plan(ros: Node, tmp_path: Path) -> None:
     # on every axis); a nav-grade gyro bias (~0.01 deg/h) needs far longer and is not checked
     shrink = s[SL['accelerometer.bias']] / p[SL['accelerometer.bias']]
     assert np.all(shrink < 0.5), shrink
+
+
+def test_calibration_node_detects_the_imu_rate(ros: Node, tmp_path: Path) -> None:
+    """No imu_rate_hz (default 0 = detect): 100 Hz raw IMU. The corrected covariance is the
+    noise of the mean for dt = 0.01 s (N^2/dt, plus the prior's propagated sigmas: the
+    estimator never aligns without joint states), from the second sample on; the node counts
+    no missing samples and reports the measured rate. With a 200 Hz default, as before, the
+    noise term would be twice as large and every interval would count one sample missing."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import Imu
+    from imu_calib_ros.core.config import resolve_config_file
+    from imu_calib_ros.core.estimator import CalibrationEstimator
+    from imu_calib_ros.core.estimator.config import EstimatorConfig
+    from imu_calib_ros.core.fixture import Fixture
+    from imu_calib_ros.core.imu_grade import load_grade
+    from imu_calib_ros.nodes.common import StreamCompensation
+    proc = start('calibration', {'diagnostics_rate_hz': 5.0, 'estimator_mode': 'thread'},
+                 tmp_path)
+    got: list[Any] = []
+    diags: list[Any] = []
+    sub = ros.create_subscription(Imu, 'imu/data_corrected', got.append, reliable_qos(1000))
+    dsub = ros.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    pub = ros.create_publisher(Imu, 'imu/data_raw', reliable_qos(1000))
+    n = 300
+    stamps = 7_000_000_000 + 10_000_000 * np.arange(n, dtype=np.int64)  # 100 Hz
+    rng = np.random.default_rng(11)
+    gyro = rng.normal(0, 1e-5, (n, 3))
+    accel = np.array([0.0, 0.0, 9.80]) + rng.normal(0, 1e-3, (n, 3))
+    try:
+        assert spin_until(ros, lambda: pub.get_subscription_count() > 0
+                          and sub.get_publisher_count() > 0, 60.0), stop(proc)
+        time.sleep(0.5)
+        for k in range(n):
+            pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
+                                                      'imu_link'), Imu))
+            rclpy.spin_once(ros, timeout_sec=0.0)
+            time.sleep(0.002)
+        assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
+
+        def last_values() -> dict[str, str]:
+            st = [d.status[0] for d in diags if d.status[0].name.endswith('IMU calibration')]
+            return {kv.key: kv.value for kv in st[-1].values} if st else {}
+        assert spin_until(ros, lambda: int(last_values().get('imu', 0)) >= n, 30.0), diags
+        values = last_values()
+    finally:
+        log = stop(proc)
+        ros.destroy_subscription(sub)
+        ros.destroy_subscription(dsub)
+        ros.destroy_publisher(pub)
+    assert 'Traceback' not in log, log
+    assert int(values['missing_imu']) == 0 and int(values['rejected.node.missing_imu']) == 0
+    assert float(values['imu_rate_measured_hz']) == pytest.approx(100.0, rel=1e-9)
+    assert 'imu_rate_warning' not in values
+    grade = load_grade('nav_grade')
+    fx = Fixture.from_yaml(resolve_config_file('three_axis', 'fixtures'))
+    prior = CalibrationEstimator(fx, grade, EstimatorConfig()).estimate(frame_id='imu_link')
+    ref = StreamCompensation(prior, grade.gyro_noise_rad_s_rt_hz,
+                             grade.accel_noise_m_s2_rt_hz, 0.01)  # the rate given
+    exp_w, exp_a = [], []
+    for k in range(n):
+        if k <= StreamCompensation.RATE_INTERVALS:
+            ref.reset()  # until the rate is known: no rate derivative (dt still 0.01 s)
+        _, _, gv, av = ref(int(stamps[k]), tuple(gyro[k]), tuple(accel[k]))
+        exp_w.append(gv)
+        exp_a.append(av)
+    var_w = np.array([[m.angular_velocity_covariance[i] for i in (0, 4, 8)] for m in got])
+    var_a = np.array([[m.linear_acceleration_covariance[i] for i in (0, 4, 8)] for m in got])
+    np.testing.assert_allclose(var_w[1:], np.array(exp_w)[1:], rtol=1e-12)
+    np.testing.assert_allclose(var_a[1:], np.array(exp_a)[1:], rtol=1e-12)
+    # the white noise of the mean is what sets these variances: N^2 / 0.01 s dominates
+    noise_w = grade.gyro_noise_rad_s_rt_hz ** 2 / 0.01
+    assert np.all(var_w[1:] >= noise_w) and np.all(var_w[1:] < 1.5 * noise_w)
+    # the first sample (no interval yet) errs on the large side
+    assert np.all(var_w[0] > var_w[1])
+
+
+def test_compensator_warns_when_the_configured_rate_is_wrong(ros: Node, tmp_path: Path) -> None:
+    """imu_rate_hz 200 configured, 100 Hz stamps: one WARN line and a WARN in /diagnostics
+    naming both rates (more than 20 % apart)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import Imu
+    _, path = known_calibration(tmp_path)
+    proc = start('compensator', {'calibration_file': str(path), 'imu_rate_hz': 200.0,
+                                 'diagnostics_rate_hz': 5.0}, tmp_path)
+    got: list[Any] = []
+    diags: list[Any] = []
+    sub = ros.create_subscription(Imu, 'imu/data_corrected', got.append, reliable_qos(1000))
+    dsub = ros.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    pub = ros.create_publisher(Imu, 'imu/data_raw', reliable_qos(1000))
+    n = 60
+
+    def comp_status() -> Any:
+        st = [d.status[0] for d in diags if d.status[0].name.endswith('IMU compensation')]
+        return st[-1] if st else None
+    try:
+        assert spin_until(ros, lambda: pub.get_subscription_count() > 0
+                          and sub.get_publisher_count() > 0, 60.0), stop(proc)
+        time.sleep(0.5)
+        for k in range(n):
+            pub.publish(imu_msg_from_sample(ImuSample(9_000_000_000 + 10_000_000 * k,
+                                                      np.zeros(3), np.array([0, 0, 9.8]),
+                                                      'imu_link'), Imu))
+            rclpy.spin_once(ros, timeout_sec=0.0)
+            time.sleep(0.002)
+        assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
+        assert spin_until(ros, lambda: comp_status() is not None
+                          and comp_status().level == b'\x01', 30.0)
+    finally:
+        log = stop(proc)
+        ros.destroy_subscription(sub)
+        ros.destroy_subscription(dsub)
+        ros.destroy_publisher(pub)
+    st = comp_status()
+    values = {kv.key: kv.value for kv in st.values}
+    assert float(values['imu_rate_measured_hz']) == pytest.approx(100.0, rel=1e-9)
+    assert '200' in st.message and '100' in st.message, st.message
+    assert log.count('configured imu_rate_hz 200') == 1, log

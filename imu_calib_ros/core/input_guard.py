@@ -437,6 +437,21 @@ class InputGuard:
         self._pend.append((t[-1:], q[-1:]))
         self._pend_rows = 1
 
+    def reset_stamps(self) -> None:
+        """Forget the stamp memory (IMU and joints) after a backward time jump (a looping bag,
+        ``use_sim_time``), so that the earlier stamps that follow are not rejected as
+        ``time_jump_backward``/``out_of_order``. The rejection counters, the units votes and
+        the nominal period are kept (same sensor); the encoder rates (indexed by the old
+        stamps) are dropped."""
+        self.last_stamp_ns = None
+        self.last_kept_ns = None
+        self.last_event_ns = None  # a data time of the old time base
+        self._last_joint = None
+        self._pend.clear()
+        self._pend_rows = 0
+        self._rate_t = np.zeros(0)
+        self._rate_v = np.zeros(0)
+
     # ---------------------------------------------------------------------------- misc
     @property
     def rejected_total(self) -> int:

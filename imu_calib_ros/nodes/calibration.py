@@ -93,9 +93,10 @@ class CalibrationNodeConfig:
         'doc': 'IMU grade (config/imus name or path): noise and prior sigmas'})
     frame_id: str = field(default='', metadata={
         'doc': 'IMU frame to accept; empty = the first sample\'s frame'})
-    imu_rate_hz: float = field(default=200.0, metadata={
-        'doc': 'nominal IMU rate [Hz] (gaps, noise of the mean, rate diagnostics)',
-        'min': 1.0, 'max': 100000.0})
+    imu_rate_hz: float = field(default=0.0, metadata={
+        'doc': 'nominal IMU rate [Hz] (gaps, noise of the mean, missing samples); 0 = detect'
+               ' from the data (median of the first 20 stamp intervals)',
+        'min': 0.0, 'max': 100000.0})
     output_file: str = field(default='imu_calibration.yaml', metadata={
         'doc': 'where ~/save_calibration writes the calibration (CONTRACT 4)'})
     save_on_shutdown: bool = field(default=False, metadata={
@@ -167,9 +168,10 @@ class CalibrationNode(Node):
         self.frame_id = cfg.frame_id
         prior = CalibrationEstimator(self.fixture, self.grade, cfg.estimator).estimate(
             frame_id=cfg.frame_id or 'imu_link')
-        self.period_s = 1.0 / cfg.imu_rate_hz
-        self.compensation = StreamCompensation(prior, self.grade.gyro_noise_rad_s_rt_hz,
-                                               self.grade.accel_noise_m_s2_rt_hz, self.period_s)
+        self.compensation = StreamCompensation(
+            prior, self.grade.gyro_noise_rad_s_rt_hz, self.grade.accel_noise_m_s2_rt_hz,
+            1.0 / cfg.imu_rate_hz if cfg.imu_rate_hz > 0 else 0.0)
+        self._rate_known = False
         self.runner = EstimatorRunner(cfg.estimator_mode,
                                       (str(fixture_file), cfg.imu_grade, cfg.estimator),
                                       cfg.frame_id or 'imu_link', cfg.estimator_queue_batches)
@@ -234,8 +236,9 @@ class CalibrationNode(Node):
         if last is not None:
             if ns <= last:
                 return self._reject('out_of_order')
-            if ns - last > 1.5e9 * self.period_s:  # samples lost upstream or in DDS
-                self.counts['missing_imu'] += round((ns - last) * 1e-9 / self.period_s) - 1
+            period = self.compensation.nominal_period_s  # None until detected
+            if period is not None and ns - last > 1.5e9 * period:  # lost upstream or in DDS
+                self.counts['missing_imu'] += round((ns - last) * 1e-9 / period) - 1
         else:
             self._first_imu_ns = self._first_imu_ns or ns
         self._last_imu_ns = ns
@@ -245,7 +248,27 @@ class CalibrationNode(Node):
             self.counts['published'] += 1
         else:
             self._reject('compensation_non_finite')
+        if not self._rate_known and self.compensation.measured_period_s is not None:
+            self._on_rate_known()
         self._pending.append((ns, gyro, accel))  # an IMU sample, cheap to pickle
+
+    def _on_rate_known(self) -> None:
+        """Once the IMU period is measured (IMU thread): count the samples missing among the
+        intervals it was measured from (when it was not configured), log the rate; one WARN
+        when a configured rate is more than 20 % off."""
+        self._rate_known = True
+        comp = self.compensation
+        period = comp.nominal_period_s
+        if comp.configured_period_s == 0.0 and period:
+            self.counts['missing_imu'] += sum(round(d * 1e-9 / period) - 1
+                                              for d in comp.intervals_ns
+                                              if d > 1.5e9 * period)
+        assert comp.measured_period_s is not None
+        if comp.rate_mismatch:
+            self.get_logger().warn(comp.rate_mismatch)
+        else:
+            self.get_logger().info(f'IMU rate {1.0 / comp.measured_period_s:.4g} Hz (from the '
+                                   'stamps)')
 
     def _on_joints(self, msg: JointState) -> None:
         self.counts['joint'] += 1
@@ -365,6 +388,11 @@ class CalibrationNode(Node):
         dt = (now - last_t).nanoseconds * 1e-9 if last_t is not None else 0.0
         self._rate_mark = (imu_n, joint_n, now)
         values = {k: str(v) for k, v in self.counts.items()}
+        comp = self.compensation
+        if comp.measured_period_s is not None:
+            values['imu_rate_measured_hz'] = f'{1.0 / comp.measured_period_s:.6g}'
+        if comp.rate_mismatch:
+            values['imu_rate_warning'] = comp.rate_mismatch
         if dt > 0:
             values['imu_rate_hz'] = f'{(imu_n - last_imu) / dt:.1f}'
             values['joint_rate_hz'] = f'{(joint_n - last_joint) / dt:.1f}'
@@ -402,6 +430,8 @@ class CalibrationNode(Node):
             return DiagnosticStatus.ERROR, msg
         if snap is not None and snap.error:
             return DiagnosticStatus.ERROR, snap.error
+        if self.compensation.rate_mismatch:
+            return DiagnosticStatus.WARN, self.compensation.rate_mismatch
         bad = sum(reasons.values())
         total = max(imu_n + joint_n, 1)
         if bad / total > self.config.warn_rejected_fraction:

@@ -291,19 +291,58 @@ class StreamCompensation:
     gyro_noise_rad_s_rt_hz, accel_noise_m_s2_rt_hz:
         White-noise densities (ARW, VRW) of the sensor.
     nominal_period_s:
-        Used for the noise variance after a gap or at the first sample, and as the gap
-        threshold (1.5 periods, CONTRACT 1) for the rate derivative.
+        Configured nominal period [s], used for the noise variance after a gap or at the
+        first sample, and as the gap threshold (1.5 periods, CONTRACT 1) for the rate
+        derivative; ``0`` = detect it from the data: the median of the first
+        :attr:`RATE_INTERVALS` stamp intervals (:attr:`measured_period_s`, measured in
+        either case). Until then the rate derivative is zero and the noise of the mean uses
+        the median of the intervals seen so far (``FIRST_PERIOD_S`` before any interval).
     """
 
+    RATE_INTERVALS = 20  # stamp intervals whose median is the measured period
+    RATE_TOLERANCE = 0.2  # a configured rate further than this (relative) from the measured
+    FIRST_PERIOD_S = 1e-3  # noise-of-the-mean period before any interval: errs large below 1 kHz
+
     def __init__(self, result: Any, gyro_noise_rad_s_rt_hz: float = 0.0,
-                 accel_noise_m_s2_rt_hz: float = 0.0, nominal_period_s: float = 0.005):
+                 accel_noise_m_s2_rt_hz: float = 0.0, nominal_period_s: float = 0.0):
         from ..core.sensor_model import compensate_one
         self._compensate_one = compensate_one
         self._gyro_n2 = float(gyro_noise_rad_s_rt_hz) ** 2
         self._accel_n2 = float(accel_noise_m_s2_rt_hz) ** 2
-        self.nominal_period_s = float(nominal_period_s)
+        if not (math.isfinite(nominal_period_s) and nominal_period_s >= 0.0):
+            raise ValueError(f'nominal_period_s must be >= 0 (0 = detect), got {nominal_period_s}')
+        self.configured_period_s = float(nominal_period_s)
+        #: the period in use: the configured one, else the measured one (None until then)
+        self.nominal_period_s: float | None = self.configured_period_s or None
+        self.measured_period_s: float | None = None
+        #: one line when a configured rate is more than RATE_TOLERANCE off the measured one
+        self.rate_mismatch = ''
+        self._intervals_ns: list[int] = []
+        self._provisional_s = self.FIRST_PERIOD_S
         self._prev: tuple[int, tuple[float, float, float]] | None = None
         self.update(result)
+
+    @property
+    def intervals_ns(self) -> tuple[int, ...]:
+        """The stamp intervals the period was (or is being) measured from."""
+        return tuple(self._intervals_ns)
+
+    def _learn(self, interval_ns: int) -> None:
+        """Collect one stamp interval; at RATE_INTERVALS, fix the measured period."""
+        iv = self._intervals_ns
+        iv.append(interval_ns)
+        med = float(np.median(iv)) * 1e-9  # a few calls per start-up only
+        self._provisional_s = med
+        if len(iv) < self.RATE_INTERVALS:
+            return
+        if self.configured_period_s > 0.0:
+            f_cfg, f_meas = 1.0 / self.configured_period_s, 1.0 / med
+            if abs(f_meas / f_cfg - 1.0) > self.RATE_TOLERANCE:
+                self.rate_mismatch = (f'configured imu_rate_hz {f_cfg:g} but the stamps say '
+                                      f'{f_meas:.4g} Hz (median of {len(iv)} intervals)')
+        else:
+            self.nominal_period_s = med
+        self.measured_period_s = med  # last: readers in other threads see a complete state
 
     def update(self, result: Any) -> None:
         """Use a new calibration from the next sample on (keeps the rate-derivative memory).
@@ -336,11 +375,16 @@ class StreamCompensation:
         dt_s = period
         wd = (0.0, 0.0, 0.0)
         if prev is not None:
-            d = (stamp_ns - prev[0]) * 1e-9
-            if 0.0 < d <= 1.5 * period:
+            dn = stamp_ns - prev[0]
+            if self.measured_period_s is None and dn > 0:
+                self._learn(dn)
+            d = dn * 1e-9
+            if period is not None and 0.0 < d <= 1.5 * period:
                 p = prev[1]
                 wd = ((gyro[0] - p[0]) / d, (gyro[1] - p[1]) / d, (gyro[2] - p[2]) / d)
                 dt_s = d
+        if dt_s is None:  # rate not known yet: zero rate derivative, provisional period
+            dt_s = self._provisional_s
         self._prev = (stamp_ns, gyro)
         omega, f = self._compensate_one(result.errors, gyro, accel, wd)
         gvar, avar = self._variances(sq, omega, f, wd, dt_s)

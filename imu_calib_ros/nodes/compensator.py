@@ -44,9 +44,10 @@ class CompensatorConfig:
     accel_noise_m_s2_rt_hz: float = field(default=0.0, metadata={
         'doc': 'accelerometer white noise (VRW) [m/s^2/sqrt(Hz)] when imu_grade is empty',
         'min': 0.0})
-    imu_rate_hz: float = field(default=200.0, metadata={
-        'doc': 'nominal IMU rate [Hz] (gap threshold 1.5 periods, noise of the mean)',
-        'min': 1.0, 'max': 100000.0})
+    imu_rate_hz: float = field(default=0.0, metadata={
+        'doc': 'nominal IMU rate [Hz] (gap threshold 1.5 periods, noise of the mean); 0 = '
+               'detect from the data (median of the first 20 stamp intervals)',
+        'min': 0.0, 'max': 100000.0})
     queue_depth: int = field(default=500, metadata={
         'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
         'max': 100000})
@@ -80,8 +81,10 @@ class CompensatorNode(Node):
                               cfg.calibration_file, 'imu_calibration.frame_id')
         gyro_n, accel_n = noise_densities(cfg.imu_grade, cfg.gyro_noise_rad_s_rt_hz,
                                           cfg.accel_noise_m_s2_rt_hz)
-        self.compensation = StreamCompensation(self.calibration, gyro_n, accel_n,
-                                               1.0 / cfg.imu_rate_hz)
+        self.compensation = StreamCompensation(
+            self.calibration, gyro_n, accel_n,
+            1.0 / cfg.imu_rate_hz if cfg.imu_rate_hz > 0 else 0.0)
+        self._rate_known = False
         self.rejected: dict[str, int] = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0,
                                          'compensation_non_finite': 0, 'bad_message': 0}
         self.published = 0
@@ -118,16 +121,27 @@ class CompensatorNode(Node):
             return self._reject('compensation_non_finite', 'compensation not finite')
         self._pub.publish(imu_cdr(ns, frame, omega, f, diag9(gvar), diag9(avar)))
         self.published += 1
+        if not self._rate_known and self.compensation.measured_period_s is not None:
+            self._rate_known = True
+            if self.compensation.rate_mismatch:
+                self.get_logger().warn(self.compensation.rate_mismatch)
 
     def _on_diag_timer(self) -> None:
         status = DiagnosticStatus(name=f'{self.get_name()}: IMU compensation',
                                   hardware_id=self.calibration.frame_id)
         bad = sum(self.rejected.values())
-        status.level = DiagnosticStatus.OK if bad == 0 else DiagnosticStatus.WARN
-        status.message = 'OK' if bad == 0 else f'{bad} samples dropped'
+        comp = self.compensation
+        status.level = DiagnosticStatus.OK if bad == 0 and not comp.rate_mismatch \
+            else DiagnosticStatus.WARN
+        status.message = comp.rate_mismatch or ('OK' if bad == 0 else f'{bad} samples dropped')
         status.values = [KeyValue(key='published', value=str(self.published)),
                          KeyValue(key='received', value=str(self._sub.messages))] + [
             KeyValue(key=f'rejected.{k}', value=str(v)) for k, v in self.rejected.items()]
+        if comp.measured_period_s is not None:
+            status.values.append(KeyValue(key='imu_rate_measured_hz',
+                                          value=f'{1.0 / comp.measured_period_s:.6g}'))
+        if comp.rate_mismatch:
+            status.values.append(KeyValue(key='imu_rate_warning', value=comp.rate_mismatch))
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(arr)

@@ -182,6 +182,24 @@ class CalibrationEstimator:
         self._nis_hist: deque[tuple[int, int, float]] = deque()
         self._kept_cal_P: FloatArray | None = None
 
+    def reset_navigation(self) -> None:
+        """Restart the navigation after a backward time jump (a looping bag, ``use_sim_time``).
+
+        Drops the navigation states, the filter's navigation block and every buffered IMU and
+        joint sample, and resets the input guard's stamp memory (the earlier stamps that now
+        come are accepted; its rejection counters are kept). The calibration states and their
+        covariance block are kept, as after a long gap (``_on_gap``, policy
+        'reinitialise'), and the filter re-aligns at the next stationary window.
+        """
+        self._drop_navigation()
+        self._imu_t, self._imu_w, self._imu_f = [], [], []
+        self._jt, self._jq = [], []
+        self._last_joint_q = None
+        self._last_imu_stamp = None
+        self._t_last_ns = None
+        self._guard.reset_stamps()
+        self.counters['navigation_resets'] = self.counters.get('navigation_resets', 0) + 1
+
     def configure_guard(self, guard_config: GuardConfig) -> None:
         """Set the bad-input / gap / divergence limits (:class:`GuardConfig`) and reset."""
         self.guard_config = guard_config
@@ -242,12 +260,14 @@ class CalibrationEstimator:
         """The current estimate (SI) with the covariance of the calibration states."""
         lay = self.layout
         idx = np.arange(6, lay.n)
-        if self._filter is None:
+        s = lay.scale[idx]
+        if self._filter is not None:
+            P = self._filter.P[np.ix_(idx, idx)] * np.outer(s, s)
+        elif self._kept_cal_P is not None:  # between a navigation reset and the re-alignment
+            P = self._kept_cal_P * np.outer(s, s)
+        else:
             P = np.diag(np.concatenate([self._prior[g] for g in lay.groups]) ** 2) \
                 if lay.groups else np.zeros((0, 0))
-        else:
-            s = lay.scale[idx]
-            P = self._filter.P[np.ix_(idx, idx)] * np.outer(s, s)
         values = self._state_values()
         return Estimate(self._theta_g.copy(), self._theta_a.copy(), self._rho.copy(),
                         self._mount.copy(), tuple(lay.labels()[6:]), values, P)
@@ -532,15 +552,24 @@ class CalibrationEstimator:
                     P[sl, sl] += self._q1_s[sl, sl] * gap_s
             self.counters['gaps_bridged'] += 1
             return
-        self._kept_cal_P = self._filter.P[6:, 6:].copy()
-        self._running = False
-        self._nav = None
-        self._filter = None
-        self._prev = None
+        self._drop_navigation()
         k = int(np.searchsorted(np.array(self._jt, np.int64), t_after_ns))
         del self._jt[:k]
         del self._jq[:k]
         self.counters['gaps_reinitialised'] += 1
+
+    def _drop_navigation(self) -> None:
+        """Drop the navigator and the filter; keep the calibration states and their
+        covariance block (``_kept_cal_P``, put back by
+        :meth:`_restore_calibration_covariance` at the next coarse alignment). Shared by
+        :meth:`_on_gap` (policy 'reinitialise') and :meth:`reset_navigation`."""
+        if self._filter is not None:  # else a block kept earlier is still waiting: keep it
+            self._kept_cal_P = self._filter.P[6:, 6:].copy()
+        self._running = False
+        self._nav = None
+        self._filter = None
+        self._prev = None
+        self._nis_hist.clear()  # cumulative counts of the dropped filter: a new window
 
     def _joints_still(self, t_before_ns: int, t_after_ns: int) -> bool:
         """True if joint samples cover the gap and show no motion beyond the tolerance."""
