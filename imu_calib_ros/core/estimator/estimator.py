@@ -31,6 +31,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from .. import sensor_model as sm
+from ..calibration import CalibrationResult
 from ..errors import InputError
 from ..input_guard import GuardConfig, InputGuard
 from ..rotation import skew
@@ -55,11 +57,6 @@ CONTRACT_KEYS: dict[str, tuple[str, ...]] = {
     'accelerometer.quadratic': ('accel_quadratic',),
     'accelerometer.size_effect': ('size_effect',),
 }
-
-
-def _sensor_model() -> Any:
-    from .. import sensor_model  # imported late: written in parallel (DESIGN.md)
-    return sensor_model
 
 
 def prior_sigmas(grade: Any, config: EstimatorConfig) -> dict[str, FloatArray]:
@@ -278,35 +275,12 @@ class CalibrationEstimator:
         Estimated groups carry their filter sigma; the others their assumed value (zero) and
         prior sigma, and are listed as fixed (CONTRACT 4).
         """
-        from ..calibration import CalibrationResult  # written in parallel (DESIGN.md)
-        sm = _sensor_model()
-        est = self.estimate_state()
-        sig_g = np.zeros(em.N_GYRO)
-        sig_a = np.zeros(em.N_ACCEL)
-        for g in em.GYRO_GROUPS:
-            sig_g[em.gyro_cols(g)] = self._prior[g]
-        for g in em.ACCEL_GROUPS:
-            sig_a[em.accel_cols(g)] = self._prior[g]
-        sd = np.sqrt(np.clip(np.diag(est.covariance), 0.0, None))
-        lay = self.layout
-        for g in lay.groups:
-            sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
-            if g in em.GYRO_GROUPS:
-                sig_g[em.gyro_cols(g)] = sd[sl]
-            elif g in em.ACCEL_GROUPS:
-                sig_a[em.accel_cols(g)] = sd[sl]
-        errors = em.errors_from_theta(self._theta_g, self._theta_a, sm.SensorErrors)
-        sigma = em.errors_from_theta(sig_g, sig_a, sm.SensorErrors)
-        fixed = tuple(k for k, gs in CONTRACT_KEYS.items()
-                      if not any(g in lay.groups for g in gs))
-        extra = {'estimator': self._extra(est, sd)}
-        return CalibrationResult(errors=errors, sigma=sigma, frame_id=frame_id, fixed=fixed,
-                                 extra=extra)
+        st = self.estimate_state()
+        return self._result_from_state(st, frame_id, lambda sd: {'estimator': self._extra(st, sd)})
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
         the current estimate (frozen at the time of the call)."""
-        sm = _sensor_model()
         errors = self._errors
 
         def compensate(gyro: FloatArray, accel: FloatArray,
@@ -708,13 +682,18 @@ class CalibrationEstimator:
         if st is None:
             return None
         if self._last_good_cache is None or self._last_good_cache[0] != id(st):
-            self._last_good_cache = (id(st), self._result_from_state(st))
+            self._last_good_cache = (id(st), self._result_from_state(
+                st, self.guard_config.frame_id or 'imu_link',
+                lambda sd: {'estimator': {
+                    'last_good_snapshot': True,
+                    'lever_arm_imu_m': [float(v) for v in st.lever_arm_imu_m],
+                    'estimated_groups': list(self.layout.groups)}}))
         return self._last_good_cache[1]
 
-    def _result_from_state(self, st: Estimate) -> Any:
-        """A snapshot as a CalibrationResult (the same assembly as :meth:`estimate`)."""
-        from ..calibration import CalibrationResult
-        sm = _sensor_model()
+    def _result_from_state(self, st: Estimate, frame_id: str,
+                           extra_of: Callable[[FloatArray], dict[str, Any]]) -> Any:
+        """An estimate as a CalibrationResult: estimated groups carry their sigma, the others
+        their prior sigma and are listed as fixed; ``extra_of(sd)`` gives the extra keys."""
         lay = self.layout
         sig_g = np.zeros(em.N_GYRO)
         sig_a = np.zeros(em.N_ACCEL)
@@ -733,12 +712,8 @@ class CalibrationEstimator:
         sigma = em.errors_from_theta(sig_g, sig_a, sm.SensorErrors)
         fixed = tuple(k for k, gs in CONTRACT_KEYS.items()
                       if not any(grp in lay.groups for grp in gs))
-        extra = {'estimator': {'last_good_snapshot': True,
-                               'lever_arm_imu_m': [float(v) for v in st.lever_arm_imu_m],
-                               'estimated_groups': list(lay.groups)}}
-        return CalibrationResult(errors=errors, sigma=sigma,
-                                 frame_id=self.guard_config.frame_id or 'imu_link',
-                                 fixed=fixed, extra=extra)
+        return CalibrationResult(errors=errors, sigma=sigma, frame_id=frame_id, fixed=fixed,
+                                 extra=extra_of(sd))
 
     # ------------------------------------------------------------------ alignment
     def _try_initialise(self) -> bool:
@@ -786,7 +761,6 @@ class CalibrationEstimator:
         self._n = max(1, int(round(rate / cfg.update_rate_hz)))
         j1 = min(stop_j + 1, int(np.searchsorted(jt, t_start + win_ns, side='right')))
         q_mean = jq[start_j:j1].mean(axis=0)  # the window only: same for any push pattern
-        sm = _sensor_model()
         w_c, f_c = sm.compensate(self._errors, ww, fw, np.zeros_like(ww))
         f_mean = f_c.mean(axis=0)
         R_fix = self.fixture.R_enu_imu(q_mean)
@@ -888,7 +862,6 @@ class CalibrationEstimator:
         n = self._n
         m = B * n
         nom = self._nominal_dt
-        sm = _sensor_model()
         lay = self.layout
         # intervals; a gap (> 1.5 nominal periods) is a sample of one nominal period
         if self._prev is None:
@@ -1004,7 +977,7 @@ class CalibrationEstimator:
         self._errors = self._make_errors()
 
     def _make_errors(self) -> Any:
-        return em.errors_from_theta(self._theta_g, self._theta_a, _sensor_model().SensorErrors)
+        return em.errors_from_theta(self._theta_g, self._theta_a, sm.SensorErrors)
 
     def _state_values(self) -> FloatArray:
         lay = self.layout
