@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import random
-import signal
 import subprocess
 import sys
 import time
@@ -20,6 +19,7 @@ os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 200))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 import rclpy  # noqa: E402
+from ros_helpers import stop_node  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
 from imu_calib_ros.core.fixture import load_fixture  # noqa: E402
@@ -85,14 +85,7 @@ def test_node_output_equals_offline_causal(mode: str) -> None:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-    log = proc.stdout.read().decode(errors='replace') if proc.stdout else ''
+    log = stop_node(proc, wait_s=10.0)
     idx = {int(t): i for i, t in enumerate(ref.stamps_ns)}
     common = [t for t in got if t in idx]
     # output starts after one revolution (2.9 s at 150 deg/s incl. the ramp): the offline

@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import os
 import random
-import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 import numpy as np
 import pytest
@@ -22,6 +20,7 @@ os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 200))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 import rclpy  # noqa: E402
+from ros_helpers import spin_until, start_node, stop_node  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
 from imu_calib_ros.core.calibration import CalibrationResult  # noqa: E402
@@ -43,30 +42,11 @@ def ros() -> Iterator[Node]:
 
 
 def start(module: str, params: dict[str, Any], cwd: Path) -> subprocess.Popen[bytes]:
-    cmd = [sys.executable, '-m', f'imu_calib_ros.nodes.{module}', '--ros-args']
-    for k, v in params.items():
-        cmd += ['-p', f'{k}:={str(v).lower() if isinstance(v, bool) else v}']
-    return subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    return start_node(module, params, cwd)
 
 
 def stop(proc: subprocess.Popen[bytes]) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-    return proc.stdout.read().decode(errors='replace') if proc.stdout else ''
-
-
-def spin_until(node: Node, cond: Callable[[], bool], timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if cond():
-            return True
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return cond()
+    return stop_node(proc, wait_s=10.0)
 
 
 def known_calibration(tmp: Path, frame_id: str = 'imu_link') -> tuple[CalibrationResult, Path]:
