@@ -289,7 +289,7 @@ class Fixture:
             if name in (j.name for j in joints):
                 raise ConfigError(f'duplicate joint name {name!r}', source, f'{key}.name')
             axis = np.array(vector(rj['axis'], 3, source, f'{key}.axis'))
-            norm = float(np.linalg.norm(axis))
+            norm = math.hypot(*axis)  # no overflow for absurd values in a file
             if norm < 1e-9:
                 raise ConfigError('zero axis', source, f'{key}.axis')
             if abs(norm - 1.0) > AXIS_NORM_TOLERANCE:
