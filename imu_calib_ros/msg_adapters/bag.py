@@ -486,12 +486,19 @@ def _window_imu(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
         k = j
 
 
-def _window_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
-                   ) -> Iterator[JointBatch]:
+def _fast_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
+                 ) -> JointBatch | None:
+    """The numpy decode of a run of JointState messages of one layout, or None when the
+    messages differ in layout (the first one is decoded by rosbags and checked either way)."""
     first_msg = _deserialize(store, path, conn, t0, raws[0])
     _sample(store, path, conn, t0, raws[0])
     rows = _rows(raws)
-    batch = _unpack_joints(rows, first_msg) if rows is not None else None
+    return _unpack_joints(rows, first_msg) if rows is not None else None
+
+
+def _window_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
+                   ) -> Iterator[JointBatch]:
+    batch = _fast_joints(store, path, conn, t0, raws)
     if batch is not None:
         yield batch
         return
@@ -688,10 +695,7 @@ def _read_imu(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]) -> Im
 
 
 def _read_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]) -> JointBatch:
-    first_msg = _deserialize(store, path, conn, t0, raws[0])
-    _sample(store, path, conn, t0, raws[0])
-    rows = _rows(raws)
-    batch = _unpack_joints(rows, first_msg) if rows is not None else None
+    batch = _fast_joints(store, path, conn, t0, raws)
     if batch is not None:
         return batch
     samples = [_sample(store, path, conn, t0, r) for r in raws]
