@@ -62,6 +62,16 @@ def known_calibration(tmp: Path, frame_id: str = 'imu_link') -> tuple[Calibratio
     return CalibrationResult.load(path), path
 
 
+def feed_imu(ros: Node, pub: Any, stamps: Any, gyro: Any, accel: Any) -> None:
+    """Publish raw IMU samples at ~500 Hz of wall time, spinning the test node between them."""
+    from sensor_msgs.msg import Imu
+    for k in range(len(stamps)):
+        pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
+                                                  'imu_link'), Imu))
+        rclpy.spin_once(ros, timeout_sec=0.0)
+        time.sleep(0.002)
+
+
 def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> None:
     """Corrected IMU: same stamps and frame, REP-145 marker, values = offline compensation."""
     from sensor_msgs.msg import Imu
@@ -82,11 +92,7 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
         t = (stamps - stamps[0]) * 1e-9
         gyro = np.c_[np.sin(3 * t), 0.5 * np.cos(2 * t), 0.2 * t] + rng.normal(0, 1e-3, (n, 3))
         accel = np.c_[0.1 * t, -0.2 + 0 * t, 9.81 + 0 * t] + rng.normal(0, 1e-2, (n, 3))
-        for k in range(n):
-            pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
-                                                      'imu_link'), Imu))
-            rclpy.spin_once(ros, timeout_sec=0.0)
-            time.sleep(0.002)
+        feed_imu(ros, pub, stamps, gyro, accel)
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
     finally:
         log = stop(proc)
@@ -271,11 +277,7 @@ def test_calibration_node_detects_the_imu_rate(ros: Node, tmp_path: Path) -> Non
         assert spin_until(ros, lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 60.0), stop(proc)
         time.sleep(0.5)
-        for k in range(n):
-            pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
-                                                      'imu_link'), Imu))
-            rclpy.spin_once(ros, timeout_sec=0.0)
-            time.sleep(0.002)
+        feed_imu(ros, pub, stamps, gyro, accel)
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
 
         def last_values() -> dict[str, str]:
@@ -337,12 +339,8 @@ def test_compensator_warns_when_the_configured_rate_is_wrong(ros: Node, tmp_path
         assert spin_until(ros, lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 60.0), stop(proc)
         time.sleep(0.5)
-        for k in range(n):
-            pub.publish(imu_msg_from_sample(ImuSample(9_000_000_000 + 10_000_000 * k,
-                                                      np.zeros(3), np.array([0, 0, 9.8]),
-                                                      'imu_link'), Imu))
-            rclpy.spin_once(ros, timeout_sec=0.0)
-            time.sleep(0.002)
+        feed_imu(ros, pub, 9_000_000_000 + 10_000_000 * np.arange(n), np.zeros((n, 3)),
+                 np.tile([0.0, 0.0, 9.8], (n, 1)))
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
         assert spin_until(ros, lambda: comp_status() is not None
                           and comp_status().level == b'\x01', 30.0)
