@@ -20,6 +20,7 @@ FIXTURES = sorted(p.stem for p in (ROOT / 'config' / 'fixtures').glob('*.yaml'))
 REFUSED = {
     ('savage_2axis', 'kozlov_oscillation'): 'vertical',
     ('savage_2axis', 'srt_then_kozlov'): 'vertical',
+    ('savage_2axis', 'srt_kozlov_bias'): 'vertical',
 }
 
 

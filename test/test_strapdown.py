@@ -335,13 +335,14 @@ def _sim_and_nav(fixture_name: str, plan, errors=None, mounting=None):
     return sim, nav.propagate(dt, sim.imu.gyro_rad_s, sim.imu.accel_m_s2)
 
 
-# every shipped plan, each on one fixture that can run it (srt_then_kozlov is the other two
-# in a row, 21 min: slow); every other plan x fixture pair runs with -m slow
+# every shipped plan, each on one fixture that can run it (srt_then_kozlov and
+# srt_kozlov_bias chain the others, 21 and 34 min: slow); every other plan x fixture pair runs with -m slow
 FIXTURES = ('savage_2axis', 'three_axis')
 FAST_CASES = {'static_6pos': 'savage_2axis', 'savage_srt': 'savage_2axis',
               'kozlov_oscillation': 'three_axis', 'rotation_modulation': 'three_axis',
-              'random_moves': 'savage_2axis', 'demo_short': 'three_axis'}
-SLOW_PLANS = ('srt_then_kozlov',)
+              'random_moves': 'savage_2axis', 'demo_short': 'three_axis',
+              'gyro_bias_6pos': 'three_axis'}
+SLOW_PLANS = ('srt_then_kozlov', 'srt_kozlov_bias')
 
 
 def _shipped_plans() -> list[str]:

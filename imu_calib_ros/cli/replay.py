@@ -36,8 +36,9 @@ def register(subparsers: Any) -> None:
                    help='IMU grade name or path: prior and noise (default nav_grade)')
     p.add_argument('--config', default=None, metavar='EST.yaml',
                    help='estimator config (default: config/estimator.yaml defaults)')
-    p.add_argument('--iterations', type=int, default=2, metavar='N',
-                   help='passes over the bag (Savage sect. 8), >= 1 (default 2)')
+    p.add_argument('--iterations', type=int, default=1, metavar='N',
+                   help='passes over the bag, >= 1 (default 1); each extra pass '
+                        'relinearises about the previous estimate (Savage sect. 8)')
     p.add_argument('--method', default='ekf', choices=METHODS,
                    help='ekf: augmented-state EKF (default); srt: Savage\'s SRT processor; '
                         'oscillation: Kozlov & Kapralov\'s harmonic oscillations')
