@@ -51,7 +51,7 @@ class EstimatorConfig:
                                    1e-9)
     gate_probability: float = setting(0.99999, 'chi-square gate: reject innovations beyond this '
                                  'quantile (1 disables the gate)', 0.5, 1.0)
-    block_chunks: int = setting(10, 'updates per block between feedbacks to the navigator', 1, 1000)
+    block_chunks: int = setting(50, 'updates per block between feedbacks to the navigator', 1, 1000)
     # --- initialisation --------------------------------------------------------------------
     init_window_s: float = setting(2.0, 'stationary window for coarse alignment', 0.1, 600.0)
     stationary_joint_tolerance_rad: float = setting(1e-4, 'joint travel allowed in the window', 0.0)

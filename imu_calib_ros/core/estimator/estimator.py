@@ -16,7 +16,9 @@ between two measurement updates, and chunks in *blocks* of ``config.block_chunks
 5. feed the error state back at the block end (navigator correction, new compensation).
 
 Inside a block the error state is carried (not fed back), which is exact for a linear model
-and keeps the errors small enough for the linearisation (a block is 1 s by default).
+and keeps the errors small enough for the linearisation (a block is 5 s by default: per-block
+Python overhead dominated at 1 s; 5 s blocks replay 1.6x faster and move no nav-grade or MEMS
+state by more than 0.04 sigma, 10 s blocks moved a MEMS state by 0.34 sigma).
 """
 from __future__ import annotations
 
