@@ -65,10 +65,10 @@ def comparison_table(estimate: Any, truth: Any) -> tuple[str, int, int]:
             ok = np.abs(ratio) <= 3
             within += int(np.sum(ok))
             total += int(np.sum(np.isfinite(ratio)))
-        def fmt(v: Any, w: int = 11) -> str:  # noqa: E306 - tiny local formatter
-            return ''.join(f'{x:>{w}.3g}' for x in v)
+        def fmt(v: Any, w: int = 11, spec: str = '.3g') -> str:  # noqa: E306 - tiny local
+            return ''.join(f' {x:>{w - 1}{spec}}' for x in v)   # one space: never run together
         lines.append(f'{label:<26}{unit:<9}{fmt(tru)}{fmt(est)}{fmt(sig, 9)}'
-                     f'{fmt(ratio, 7) if not is_fixed else "   (fixed)":>22}')
+                     f'{fmt(ratio, 7, ".2f") if not is_fixed else "   (fixed)":>22}')
     return '\n'.join(lines), within, total
 
 
