@@ -55,10 +55,11 @@ def comparison_table(estimate: Any, truth: Any) -> tuple[str, int, int]:
              f'{"err/sigma":>22}']
     within = total = 0
     fixed = set(getattr(estimate, 'fixed', ()))
+    tracked = truth.tracked_truth()  # the filter tracks the total bias
     for label, attr, idx, unit, scale in ROWS:
         est = np.asarray(getattr(estimate.errors, attr), float).ravel()[idx] / scale
         sig = np.asarray(getattr(estimate.sigma, attr), float).ravel()[idx] / scale
-        tru = np.asarray(getattr(truth.errors, attr), float).ravel()[idx] / scale
+        tru = np.asarray(getattr(tracked, attr), float).ravel()[idx] / scale
         is_fixed = CONTRACT_KEY[attr] in fixed
         ratio = np.where(sig > 0, (est - tru) / np.where(sig > 0, sig, 1), np.nan)
         if not is_fixed:
@@ -69,6 +70,9 @@ def comparison_table(estimate: Any, truth: Any) -> tuple[str, int, int]:
             return ''.join(f' {x:>{w - 1}{spec}}' for x in v)   # one space: never run together
         lines.append(f'{label:<26}{unit:<9}{fmt(tru)}{fmt(est)}{fmt(sig, 9)}'
                      f'{fmt(ratio, 7, ".2f") if not is_fixed else "   (fixed)":>22}')
+    if truth.extra.get('bias_at_end'):
+        lines.append('(bias truth: the turn-on value plus the simulated in-run drift at the end '
+                     'of the plan, which is what the filter tracks)')
     return '\n'.join(lines), within, total
 
 

@@ -131,6 +131,11 @@ def test_gauss_markov_bias_has_its_sigma() -> None:
     lag = int(0.5 * 50)  # autocorrelation at one correlation time is exp(-1)
     r = np.mean([np.corrcoef(b[:-lag, k], b[lag:, k])[0, 1] for k in range(3)])
     assert r == pytest.approx(math.exp(-1.0), abs=0.1)
+    # the truth file's bias_at_end (what a filter tracking the total bias should end at)
+    at_end = res.truth.extra['bias_at_end']
+    np.testing.assert_array_equal(at_end['gyro_rad_s'], b[-1])  # turn-on bias zero here
+    np.testing.assert_array_equal(at_end['accel_m_s2'], res.bias_drift_accel_m_s2[-1])
+    assert np.abs(b[-1]).max() > 1e-6  # a real drift, not zeros
 
 
 def test_reproducible_truth_and_joint_states() -> None:

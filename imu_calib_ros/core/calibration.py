@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -201,6 +202,16 @@ class CalibrationResult:
     def load(cls, path: str | os.PathLike[str]) -> 'CalibrationResult':
         """Read and validate a CONTRACT 4 file (:class:`ConfigError` naming file and key)."""
         return cls.from_dict(load_yaml(path), str(path))
+
+    def tracked_truth(self) -> SensorErrors:
+        """For a simulator truth file: the errors an estimator that tracks the total bias
+        should end at, i.e. the biases replaced by ``extra.bias_at_end`` (turn-on value plus
+        the simulated in-run drift at the last sample) when the file has it."""
+        at_end = self.extra.get('bias_at_end') or {}
+        repl = {f: np.asarray(at_end[k], float) for f, k in
+                (('gyro_bias_rad_s', 'gyro_rad_s'), ('accel_bias_m_s2', 'accel_m_s2'))
+                if k in at_end}
+        return dataclasses.replace(self.errors, **repl) if repl else self.errors
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -190,6 +190,11 @@ def simulate(fixture: Fixture, profile: JointProfile, grade: ImuGrade,
         extra={
             'mounting': {'rpy_rad': [float(x) for x in drpy], 'xyz_m': [float(x) for x in dxyz]},
             'noise': grade.noise_dict() if config.noise else {},
+            # the turn-on biases above plus the simulated in-run drift at the last sample:
+            # what an estimator that tracks the total bias should end at
+            'bias_at_end': {
+                'gyro_rad_s': [float(x) for x in errors.gyro_bias_rad_s + drift_g[-1]],
+                'accel_m_s2': [float(x) for x in errors.accel_bias_m_s2 + drift_a[-1]]},
             'provenance': {'generator': 'imu_calib_ros.core.simulator', 'grade': grade.name,
                            'plan': profile.plan_name, 'fixture': fixture.source or '',
                            'seed': int(config.seed), 'imu_rate_hz': float(config.imu_rate_hz),

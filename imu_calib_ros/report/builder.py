@@ -87,13 +87,15 @@ def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> s
         head += (f'<th>{html.escape(name)}</th><th>&sigma;</th>'
                  + ('<th>err</th><th>err/&sigma;</th>' if truth is not None else ''))
     rows = [head + '</tr>']
+    # biases: the turn-on value plus the simulated drift at the end, which the EKF tracks
+    tracked = truth.tracked_truth() if truth is not None else None
     for fld, label, k, unit, key in ROWS:
         for idx in _entries(fld):
             tag = label + '[' + ','.join('xyz'[i] for i in idx) + ']'
             r = f'<tr><td>{tag}</td><td>{unit}</td>'
             tv = None
             if truth is not None:
-                tv = float(np.asarray(getattr(truth.errors, fld))[idx]) * k
+                tv = float(np.asarray(getattr(tracked, fld))[idx]) * k
                 r += f'<td>{tv:.4g}</td>'
             for _, res in results:
                 v = float(np.asarray(getattr(res.errors, fld))[idx]) * k

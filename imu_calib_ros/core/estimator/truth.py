@@ -19,9 +19,7 @@ def calibration_truth(est: Any, sim: Any) -> NDArray[np.float64]:
     fixture against the nominal one the estimator was given.
     """
     lay = est.layout
-    tg, ta = em.theta_from_errors(sim.truth.errors)
-    tg[em.gyro_cols('gyro_bias')] += sim.bias_drift_gyro_rad_s[-1]
-    ta[em.accel_cols('accel_bias')] += sim.bias_drift_accel_m_s2[-1]
+    tg, ta = em.theta_from_errors(sim.truth.tracked_truth())
     x = np.zeros(lay.n)
     x[lay.gyro_state_idx] = tg[lay.gyro_cols]
     x[lay.accel_state_idx] = ta[lay.accel_cols]
