@@ -24,10 +24,10 @@ from ros_helpers import spin_until, start_node, stop_node  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
 from imu_calib_ros.core.calibration import CalibrationResult  # noqa: E402
-from imu_calib_ros.core.sensor_model import compensate  # noqa: E402
+from imu_calib_ros.core.sensor_model import compensate, mean_rate_derivative  # noqa: E402
 from imu_calib_ros.core.types import ImuSample  # noqa: E402
 from imu_calib_ros.msg_adapters.convert import imu_msg_from_sample  # noqa: E402
-from imu_calib_ros.nodes.common import causal_rate_derivative, latched_qos, reliable_qos  # noqa
+from imu_calib_ros.nodes.common import latched_qos, reliable_qos  # noqa
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -109,7 +109,7 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
     # offline: the core's compensate, one sample per call (a batch call may differ in the
     # last bit: BLAS matmul is not row-independent), omega_dot from
     # the causal difference with the 1.5-period gap rule
-    omega_dot = causal_rate_derivative(stamps, gyro, 0.005)
+    omega_dot = mean_rate_derivative(stamps, gyro, causal=True, nominal_period_s=0.005)
     assert np.all(omega_dot[150] == 0) and np.any(omega_dot[151] != 0)
     ref = [compensate(calib.errors, gyro[k:k + 1], accel[k:k + 1],
                       omega_dot_imu_rad_s2=omega_dot[k:k + 1]) for k in range(n)]

@@ -311,17 +311,23 @@ def test_compensate_non_finite_sample_is_nan_and_leaves_others() -> None:
 
 def test_mean_rate_derivative_not_across_a_gap() -> None:
     """CONTRACT 1: after a gap the rates jump (a step in the lost stretch); the derivative is
-    taken per stretch (one-sided at its ends), so the step never shows up as omega_dot, and a
-    lone sample between two gaps gets zero. A linear ramp is exact inside each stretch."""
+    taken per stretch (one-sided at its ends; the causal form is zero at stretch starts), so
+    the step never shows up as omega_dot, and a lone sample between two gaps gets zero. A
+    linear ramp is exact inside each stretch."""
     dt_ns = 5_000_000
     k = np.r_[1:41, 61:62, 81:121]  # gaps before samples 61 and 81: sample 61 is alone
     stamps = k * dt_ns + 7_000_000_000
     t = (stamps - stamps[0]) * 1e-9
     slope = np.array([0.5, -1.0, 2.0])
     w = t[:, None] * slope + np.where(k > 60, 3.0, 0.0)[:, None]  # +3 rad/s step in the gap
-    for causal in (False, True):
-        got = mean_rate_derivative(stamps, w, causal=causal)
-        lone = int(np.flatnonzero(k == 61)[0])
-        np.testing.assert_allclose(np.delete(got, lone, axis=0),
-                                   np.broadcast_to(slope, (len(k) - 1, 3)), atol=1e-9)
-        np.testing.assert_array_equal(got[lone], 0.0)
+    lone = int(np.flatnonzero(k == 61)[0])
+    got = mean_rate_derivative(stamps, w)
+    np.testing.assert_allclose(np.delete(got, lone, axis=0),
+                               np.broadcast_to(slope, (len(k) - 1, 3)), atol=1e-9)
+    np.testing.assert_array_equal(got[lone], 0.0)
+    # causal: zero at each stretch start (nothing before it), the slope elsewhere
+    got = mean_rate_derivative(stamps, w, causal=True)
+    starts = np.flatnonzero(np.r_[True, np.diff(k) > 1])
+    np.testing.assert_array_equal(got[starts], 0.0)
+    np.testing.assert_allclose(np.delete(got, starts, axis=0),
+                               np.broadcast_to(slope, (len(k) - len(starts), 3)), atol=1e-9)

@@ -321,17 +321,22 @@ def measure(errors: SensorErrors, omega_ib_imu_rad_s: ArrayLike,
 
 
 def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
-                         causal: bool = False) -> FloatArray:
+                         causal: bool = False,
+                         nominal_period_s: float | None = None) -> FloatArray:
     """Angular acceleration estimated from mean-over-interval rates (CONTRACT 1 samples).
 
     Sample k is the mean rate over (t_{k-1}, t_k]; the mean of omega_dot over that
     interval is (omega(t_k) - omega(t_{k-1})) / dt, which the difference of neighbouring
     mean rates estimates. ``causal=False``: second-order central differences on the
     (possibly uneven) stamps, second-order one-sided at both ends (:func:`numpy.gradient`).
-    ``causal=True``: backward difference (mean rate k minus mean rate k-1), which refers
-    to the time half a sample earlier; the first sample gets the first difference.
-    Never across a gap (CONTRACT 1, :func:`~.types.sample_intervals_ns`): each stretch
-    between gaps is differentiated on its own (one-sided at its ends, zero for a lone sample).
+    ``causal=True``: backward difference (mean rate k minus mean rate k-1, over
+    ``(t_k - t_{k-1})`` from the int64 stamps), which refers to the time half a sample
+    earlier, and zero at the first sample of each stretch: only past samples, what a live
+    node can compute (``nodes.common.StreamCompensation`` does this per sample, same bits).
+    Never across a gap (CONTRACT 1, :func:`~.types.sample_intervals_ns`, gaps judged
+    against ``nominal_period_s`` or, if None, the median interval): each stretch between
+    gaps is differentiated on its own (central: one-sided at its ends, zero for a lone
+    sample).
 
     Parameters
     ----------
@@ -356,15 +361,13 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     dt = np.diff(t_s)
     if np.any(dt <= 0):
         raise ValueError('stamps must be strictly increasing')
-    is_gap = sample_intervals_ns(stamps)[1]
+    is_gap = sample_intervals_ns(
+        stamps, None if nominal_period_s is None else nominal_period_s * 1e9)[1]
     if causal:
-        d = np.concatenate([np.zeros((1, 3)), np.diff(w, axis=0) / dt[:, None]], axis=0)
-        first = np.flatnonzero(np.concatenate([[True], is_gap[1:]]))  # stretch starts
-        nxt = first + 1
-        ok = nxt < n
-        ok[ok] &= ~is_gap[nxt[ok]]  # the stretch has a second sample
-        d[first] = 0.0
-        d[first[ok]] = d[nxt[ok]]
+        d = np.zeros_like(w)
+        dt_s = np.diff(stamps.astype(np.int64)) * 1e-9
+        ok = ~is_gap[1:]
+        d[1:][ok] = (w[1:][ok] - w[:-1][ok]) / dt_s[ok, None]
         return d
     out = np.empty_like(w)
     # stretches between gaps; a Python loop over them (gaps are rare in a recording)

@@ -274,7 +274,7 @@ class StreamCompensation:
 
     The values are :func:`imu_calib_ros.core.sensor_model.compensate_one` (the same bits as
     ``compensate`` on ``(1, 3)`` arrays) with ``omega_dot_imu`` the backward difference of
-    consecutive raw mean rates (:func:`causal_rate_derivative`'s arithmetic: Kozlov &
+    consecutive raw mean rates (``sensor_model.mean_rate_derivative(causal=True)``: Kozlov &
     Kapralov eq. 1 needs the angular acceleration for the size effect; a causal difference
     keeps the output latency at zero samples), zero after a gap > 1.5 nominal periods.
     Everything runs in Python floats: ~20-40 us per sample, no numpy call.
@@ -420,26 +420,6 @@ class StreamCompensation:
                         + a_r2[r] * mi[0] * mi[0] + a_r2[r + 1] * mi[1] * mi[1]
                         + a_r2[r + 2] * mi[2] * mi[2])
         return tuple(gvar), tuple(avar)
-
-
-def causal_rate_derivative(stamps_ns: np.ndarray, gyro_rad_s: FloatArray,
-                           nominal_period_s: float) -> FloatArray:
-    """Backward difference of mean-over-interval rates, ``(N, 3)``, for the size effect.
-
-    ``out[k] = (w_k - w_{k-1}) / (t_k - t_{k-1})``: consecutive interval means sit one
-    period apart. Row 0, and any row after a gap longer than 1.5 nominal periods
-    (CONTRACT 1) or a non-increasing stamp, is zero. The offline form of what
-    :class:`StreamCompensation` does per sample (same arithmetic, same bits). Hand-written:
-    numpy's ``gradient`` is central, not causal, and knows no gaps.
-    """
-    gyro = np.asarray(gyro_rad_s, float)
-    out = np.zeros_like(gyro)
-    if gyro.shape[0] < 2:
-        return out
-    dt_s = np.diff(np.asarray(stamps_ns, np.int64)) * 1e-9
-    ok = (dt_s > 0.0) & (dt_s <= 1.5 * nominal_period_s)
-    out[1:][ok] = (gyro[1:][ok] - gyro[:-1][ok]) / dt_s[ok, None]
-    return out
 
 
 def diag9(var3: Any) -> tuple[float, ...]:
