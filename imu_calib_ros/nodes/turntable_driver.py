@@ -6,7 +6,8 @@ controller, e.g. ``/joint_trajectory_controller/joint_trajectory`` of a ros2_con
 trajectory controller). The points carry position, velocity and acceleration sampled from the
 plan's analytic profile at every breakpoint and every ``point_period_s`` in between, so a
 quintic interpolation through them (the controller's, or ``turntable_sim``'s) reproduces the
-plan's moves exactly and its oscillations to O(h^6).
+plan's moves exactly and its oscillations to O(h^6); a second point 1 ms before each
+breakpoint carries acceleration steps (an oscillation's start).
 
 The profile starts where the table is: the driver waits for one ``joint_states`` message (up to
 ``wait_timeout_s``; else it starts from zero angles). It then follows ``joint_states`` until
@@ -32,7 +33,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..core.types import FloatArray
-from ..msg_adapters.convert import joint_sample_from_msg
+from ..msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
 from .common import declare_config, reliable_qos, run_node, sensor_qos
 
 NODE_NAME = 'turntable_driver'
@@ -61,18 +62,28 @@ class TurntableDriverConfig:
         'doc': 'exit status 1 if a joint state deviates more from the plan [deg]', 'min': 0.0})
 
 
+#: Time of the extra point before each breakpoint [s].
+BREAKPOINT_LEAD_S = 1e-3
+
+
 def trajectory_from_profile(profile: Any, point_period_s: float,
                             lead_in_s: float = 0.0) -> JointTrajectory:
     """A JointTrajectory through ``profile``: breakpoints plus a grid of ``point_period_s``.
 
     Point ``k`` has ``time_from_start = lead_in_s + t_k`` and the profile's ``q, qd, qdd`` at
-    ``t_k`` (rad, rad/s, rad/s^2). ``header.stamp`` is zero: start on receipt.
+    ``t_k`` (rad, rad/s, rad/s^2). ``header.stamp`` is zero (start on receipt); the node
+    stamps it with the time it measures the plan from.
     """
     t_end = float(profile.duration_s)
     n_grid = max(int(math.ceil(t_end / point_period_s)), 1)
-    t = np.union1d(np.asarray(profile.breakpoints_s, float),
-                   np.linspace(0.0, t_end, n_grid + 1))
-    keep = np.concatenate([[True], np.diff(t) > 1e-3])  # drop near-duplicates
+    bp = np.asarray(profile.breakpoints_s, float)
+    # a point just before each breakpoint too: the acceleration may step there (an
+    # oscillation starts at -A w^2), which one C2 point cannot carry for both sides; across
+    # the 1 ms between the two the quintic's error is ~ step x (1 ms)^2 / 60 (1e-7 rad),
+    # where the grid alone left 2e-4 rad (A = 30 deg, T = 2 s, 0.05 s points)
+    pre = bp[1:-1] - BREAKPOINT_LEAD_S
+    t = np.union1d(np.union1d(bp, pre[pre > 0.0]), np.linspace(0.0, t_end, n_grid + 1))
+    keep = np.concatenate([[True], np.diff(t) > 0.5 * BREAKPOINT_LEAD_S])  # near-duplicates
     t = t[keep]
     if t[-1] < t_end:
         t = np.append(t, t_end)
@@ -169,6 +180,9 @@ class TurntableDriverNode(Node):
         msg = trajectory_from_profile(self._profile, self.config.point_period_s,
                                       self.config.lead_in_s)
         self._t0_ns = self.get_clock().now().nanoseconds
+        # the controller starts the trajectory at this stamp (ros2_control semantics), the
+        # time the tracking check measures from: transport latency does not shift them apart
+        msg.header.stamp = time_msg_from_ns(self._t0_ns)
         self._pub.publish(msg)
         self.get_logger().info(f'plan "{self.plan.name}": {len(msg.points)} points, '
                                f'{self._profile.duration_s:.1f} s, sent to '

@@ -10,7 +10,7 @@ times real time. Two ways to move:
   ros2_control joint trajectory controller). The commanded points are joined by quintic
   polynomials through the given positions, velocities and accelerations (zero when absent),
   i.e. rest-to-rest quintic moves like the plans' moves. A new command replaces the rest of
-  the current one from the present state, as the controller does.
+  the current one from its ``header.stamp`` (zero: now), as the controller does.
 
 The motion is simulated in chunks (a whole plan, a trajectory, or ``hold_chunk_s`` of holding
 still), each starting at the last published IMU stamp from the state reached there, with the
@@ -261,37 +261,71 @@ class TurntableSimNode(Node):
         self.get_logger().info(f'plan "{self.config.plan}": {profile.duration_s:.1f} s '
                                f'simulated, {len(chunk.imu)} IMU samples')
 
-    def _current_state(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def _state_at(self, stamp_ns: int) -> tuple[FloatArray, FloatArray, FloatArray]:
         for chunk in reversed(self._chunks):
-            if chunk.start_ns <= self._last_imu_ns:
-                return chunk.state_at(self._last_imu_ns)
-        return self._chunks[-1].state_at(self._last_imu_ns)
+            if chunk.start_ns <= stamp_ns:
+                return chunk.state_at(stamp_ns)
+        return self._chunks[-1].state_at(stamp_ns)
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
+        """Follow a trajectory from ``header.stamp`` (zero: from now), as a ros2_control
+        joint trajectory controller does.
+
+        A stamp in the past by less than the first point's ``time_from_start`` (transport
+        latency; the driver stamps the time it measures the plan from) starts the trajectory
+        at the stamp, from the state at the stamp; the samples already published up to now
+        stay as they were (the start of a trajectory leaves the table's state with zero
+        velocity only if its first point is that state, as the driver's lead-in is). Further
+        in the past: from now, with a warning. In the future: hold until then.
+        """
+        cut = self._last_imu_ns
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        start = stamp if stamp > 0 else cut
+        if msg.points:
+            t1 = msg.points[0].time_from_start
+            first_ns = t1.sec * 10**9 + t1.nanosec
+            if start > cut + int(60e9):
+                self.get_logger().warn(f'trajectory stamped {(start - cut) * 1e-9:.0f} s ahead '
+                                       'of the simulated time (a wall-clock stamp? set '
+                                       'use_sim_time on the sender): starting it now')
+                start = cut
+            elif start < cut - first_ns:
+                self.get_logger().warn(f'trajectory stamped {(cut - start) * 1e-9:.3f} s in the '
+                                       'past: starting it now')
+                start = cut
+        # the simulated chunk starts on the IMU sample grid (uniform stamps, CONTRACT 1) at
+        # or before the stamp; the profile holds its start state for the difference
+        period_ns = int(round(1e9 / self.config.imu_rate_hz))
+        chunk_ns = cut + ((start - cut) // period_ns) * period_ns
         try:
-            profile = self._profile_from_trajectory(msg)
+            profile = self._profile_from_trajectory(msg, chunk_ns, (start - chunk_ns) * 1e-9)
         except (PlanError, ConfigError) as exc:
             self.get_logger().error(f'trajectory refused: {exc}')
             return
-        cut = self._last_imu_ns
-        self._chunks = [c for c in self._chunks if c.start_ns < cut]
-        self._append(profile, cut)
+        if chunk_ns > cut:  # hold where the table is until the stamp
+            q, _, _ = self._state_at(cut)
+            self._chunks = [c for c in self._chunks if c.start_ns < cut]
+            self._append(QuinticProfile.hold(self.joint_names, q, (chunk_ns - cut) * 1e-9), cut)
+        else:
+            self._chunks = [c for c in self._chunks if c.start_ns < chunk_ns]
+        self._append(profile, chunk_ns)
         self.get_logger().info(f'following trajectory of {len(msg.points)} points, '
-                               f'{profile.duration_s:.2f} s')
+                               f'{profile.duration_s:.2f} s, from {start * 1e-9:.3f} s')
 
-    def _profile_from_trajectory(self, msg: JointTrajectory) -> QuinticProfile:
+    def _profile_from_trajectory(self, msg: JointTrajectory, start_ns: int,
+                                 delay_s: float = 0.0) -> QuinticProfile:
         unknown = [n for n in msg.joint_names if n not in self.joint_names]
         if unknown:
             raise PlanError(f'unknown joints {unknown} (fixture joints: '
                             f'{list(self.joint_names)})')
         if not msg.points:
             raise PlanError('no points')
-        q0, qd0, qdd0 = self._current_state()
+        q0, qd0, qdd0 = self._state_at(start_ns)
         idx = [self.joint_names.index(n) for n in msg.joint_names]
         t = [0.0]
         qs, qds, qdds = [q0], [qd0], [qdd0]
         for i, p in enumerate(msg.points):
-            tk = p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
+            tk = delay_s + p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
             if len(p.positions) != len(idx):
                 raise PlanError(f'point {i}: {len(p.positions)} positions for '
                                 f'{len(idx)} joints')
