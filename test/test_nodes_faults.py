@@ -119,15 +119,18 @@ class Wiring:
 
 def stream(w: Wiring, t0_ns: int, n: int, period_ns: int, joints: list[str] | None,
            bad: Callable[[int], tuple[Any, Any, str] | None] = lambda k: None,
-           clock: bool = False) -> list[int]:
-    """Publish n IMU samples (at rest, level) and joints every 5th; returns good stamps."""
+           clock: bool = False, skip: frozenset[int] = frozenset()) -> list[int]:
+    """Publish n IMU samples (at rest, level) and joints every 5th; returns good stamps.
+    Samples ``k in skip`` are never sent (lost upstream)."""
     good = []
     for k in range(n):
         ns = t0_ns + k * period_ns
         if clock:
             w.set_clock(ns)
         b = bad(k)
-        if b is None:
+        if k in skip:
+            pass
+        elif b is None:
             w.imu.publish(imu_msg(ns, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81)))
             good.append(ns)
         else:
@@ -137,6 +140,34 @@ def stream(w: Wiring, t0_ns: int, n: int, period_ns: int, joints: list[str] | No
         rclpy.spin_once(w.ros, timeout_sec=0.0)
         time.sleep(period_ns * 1e-9)
     return good
+
+
+def test_samples_lost_upstream_are_counted(ros: Node, tmp_path: Path) -> None:
+    """Stamps missing from the stream (CONTRACT 1: a gap of more than 1.5 periods) are
+    counted in ``missing_imu``: one lost among the intervals the rate is measured from (no
+    ``imu_rate_hz`` given), five in a row and one more later; the rest is published."""
+    proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0,
+                  'estimator_mode': 'thread'}, tmp_path)
+    w = Wiring(ros)
+    skip = frozenset({10, 100, 101, 102, 103, 104, 250})
+    try:
+        assert w.wait_matched(), stop(proc)
+        time.sleep(1.0)
+        good = stream(w, 7_000_000_000, 400, 5_000_000, JOINTS, skip=skip)
+        assert spin_until(ros, lambda: len(w.corrected) >= len(good), 30.0), \
+            f'{len(w.corrected)} of {len(good)}'
+
+        def counted() -> bool:
+            s = last_status(w.diags)
+            return s is not None and values_of(s).get('imu') == str(len(good))
+        assert spin_until(ros, counted, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
+        values = values_of(last_status(w.diags))
+    finally:
+        log = stop(proc)
+        w.close()
+    assert int(values['missing_imu']) == len(skip), values
+    assert int(values['published']) == len(good), values
+    assert 'Traceback' not in log, log
 
 
 def test_bad_samples_never_published_counted_by_reason_and_joint_error(ros: Node,
