@@ -28,6 +28,22 @@ def test_config_yaml_matches_dataclass(cls: type, name: str, node: str) -> None:
     assert load_params_file(ROOT / 'config' / name, cls, node) == cls()
 
 
+def test_declared_defaults_are_the_dataclass_defaults_without_a_params_file() -> None:
+    """A nested field's own default (the node's 1 s estimator blocks) is what a node
+    started without --params-file runs, not the nested class's default (5 s, offline)."""
+    from imu_calib_ros.core.estimator import EstimatorConfig
+    from imu_calib_ros.nodes.calibration import LIVE_BLOCK_CHUNKS
+    assert EstimatorConfig().block_chunks != LIVE_BLOCK_CHUNKS  # else this shows nothing
+    rclpy.init(args=['x'])
+    try:
+        node = Node('calibration_defaults')
+        cfg = declare_config(node, CalibrationNodeConfig)
+        assert cfg.estimator.block_chunks == LIVE_BLOCK_CHUNKS
+        assert cfg == CalibrationNodeConfig()
+    finally:
+        rclpy.try_shutdown()
+
+
 def test_parameters_declared_from_dataclass_with_descriptors() -> None:
     rclpy.init(args=['x', '--ros-args', '--params-file',
                      str(ROOT / 'config' / 'calibration_node.yaml'),

@@ -154,17 +154,20 @@ def declare_config(node: Node, cls: type[T], prefix: str = '') -> T:
                         prefix=prefix.rstrip('.'))
 
 
-def _declare_mapping(node: Node, cls: type[Any], prefix: str) -> dict[str, Any]:
+def _declare_mapping(node: Node, cls: type[Any], prefix: str,
+                     defaults: Any = None) -> dict[str, Any]:
+    """``defaults``: the parent's default instance of ``cls`` (a nested field's
+    ``default_factory`` may differ from ``cls()``), else each field's own default."""
     hints = typing.get_type_hints(cls)
     out: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         name = f'{prefix}{f.name}'
         tp = hints[f.name]
         base, optional = _strip_optional(tp)
+        default = getattr(defaults, f.name) if defaults is not None else _default(f)
         if dataclasses.is_dataclass(base):
-            out[f.name] = _declare_mapping(node, base, f'{name}.')
+            out[f.name] = _declare_mapping(node, base, f'{name}.', default)
             continue
-        default = _default(f)
         desc = _descriptor(f, tp, name)
         if isinstance(default, tuple):
             default = list(default)
