@@ -315,14 +315,23 @@ class CalibrationEstimator:
                               self._mount.copy())
         if self._prior_shift is not None and values.size:
             values = values - self._prior_correction(P)
-            full = np.concatenate([np.zeros(6), values])
-            tg[lay.gyro_cols] = full[lay.gyro_state_idx]
-            ta[lay.accel_cols] = full[lay.accel_state_idx]
-            if 'lever_arm' in lay.slices:
-                rho = full[lay.slices['lever_arm']]
-            if 'mounting' in lay.slices:
-                mount = full[lay.slices['mounting']]
+            tg, ta, rho, mount = self._with_values(values, tg, ta, rho, mount)
         return Estimate(tg, ta, rho, mount, tuple(lay.labels()[6:]), values, P)
+
+    def _with_values(self, values: FloatArray, tg: FloatArray, ta: FloatArray,
+                     rho: FloatArray, mount: FloatArray) -> tuple[FloatArray, ...]:
+        """The parameter arrays with the calibration states set to ``values`` (the inverse
+        of :meth:`_state_values`; entries that are not states keep their values)."""
+        lay = self.layout
+        full = np.concatenate([np.zeros(6), values])
+        tg, ta = tg.copy(), ta.copy()
+        tg[lay.gyro_cols] = full[lay.gyro_state_idx]
+        ta[lay.accel_cols] = full[lay.accel_state_idx]
+        if 'lever_arm' in lay.slices:
+            rho = full[lay.slices['lever_arm']].copy()
+        if 'mounting' in lay.slices:
+            mount = full[lay.slices['mounting']].copy()
+        return tg, ta, rho, mount
 
     def estimate(self, frame_id: str = 'imu_link') -> Any:
         """The calibration as a :class:`~imu_calib_ros.core.calibration.CalibrationResult`.
@@ -684,10 +693,20 @@ class CalibrationEstimator:
         if st is not None:
             self._theta_g, self._theta_a = st.theta_gyro.copy(), st.theta_accel.copy()
             self._rho, self._mount = st.lever_arm_imu_m.copy(), st.mounting_rotvec_rad.copy()
+            if self._prior_shift is not None and st.values.size:
+                # the snapshot holds reported (prior-corrected) values; the navigator's working
+                # point is the uncorrected one that estimate_state() corrects again
+                self._theta_g, self._theta_a, self._rho, self._mount = self._with_values(
+                    st.values + self._prior_correction(st.covariance), self._theta_g,
+                    self._theta_a, self._rho, self._mount)
         else:  # nothing good yet: back to the starting point
             init = self._initial
+            q0 = np.zeros(self.fixture.n_joints)
             self._theta_g = np.zeros(em.N_GYRO) if init is None else init.theta_gyro.copy()
             self._theta_a = np.zeros(em.N_ACCEL) if init is None else init.theta_accel.copy()
+            self._rho = (self.fixture.R_enu_imu(q0).T @ self.fixture.p_enu_m(q0)
+                         if init is None else init.lever_arm_imu_m.copy())
+            self._mount = np.zeros(3) if init is None else init.mounting_rotvec_rad.copy()
         self._errors = self._make_errors()
         if self._filter is not None:
             P = np.zeros((lay.n, lay.n))
