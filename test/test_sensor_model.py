@@ -331,3 +331,17 @@ def test_mean_rate_derivative_not_across_a_gap() -> None:
     np.testing.assert_array_equal(got[starts], 0.0)
     np.testing.assert_allclose(np.delete(got, starts, axis=0),
                                np.broadcast_to(slope, (len(k) - len(starts), 3)), atol=1e-9)
+
+
+@pytest.mark.parametrize('hz', [50.0, 100.0, 200.0, 400.0, 800.0])
+def test_causal_rate_derivative_gap_rule_at_exactly_one_and_a_half_periods(hz: float) -> None:
+    """The offline causal derivative decides a gap exactly as the live node does
+    (``nodes.common.StreamCompensation``: ``0 < dn * 1e-9 <= 1.5 * period``), also at the
+    boundary, where a comparison in integer ns rounds the other way at these rates."""
+    period = 1.0 / hz
+    thr = int(round(1.5 * period * 1e9))
+    for dn in range(thr - 2, thr + 3):
+        stamps = np.array([0, int(period * 1e9), int(period * 1e9) + dn], np.int64)
+        w = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+        got = mean_rate_derivative(stamps, w, causal=True, nominal_period_s=period)[2, 0]
+        assert (got != 0.0) == (0.0 < dn * 1e-9 <= 1.5 * period), (hz, dn, got)

@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import require_mapping
 from .errors import ConfigError
-from .types import sample_intervals_ns
+from .types import GAP_PERIODS, sample_intervals_ns
 
 FloatArray = NDArray[np.float64]
 
@@ -361,14 +361,18 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     dt = np.diff(t_s)
     if np.any(dt <= 0):
         raise ValueError('stamps must be strictly increasing')
-    is_gap = sample_intervals_ns(
-        stamps, None if nominal_period_s is None else nominal_period_s * 1e9)[1]
     if causal:
+        # the live node's comparison, in seconds (nodes.common.StreamCompensation): the
+        # same decision at an interval of exactly GAP_PERIODS periods
         d = np.zeros_like(w)
         dt_s = np.diff(stamps.astype(np.int64)) * 1e-9
-        ok = ~is_gap[1:]
+        period_s = (float(np.median(dt_s)) if nominal_period_s is None
+                    else float(nominal_period_s))
+        ok = dt_s <= GAP_PERIODS * period_s
         d[1:][ok] = (w[1:][ok] - w[:-1][ok]) / dt_s[ok, None]
         return d
+    is_gap = sample_intervals_ns(
+        stamps, None if nominal_period_s is None else nominal_period_s * 1e9)[1]
     out = np.empty_like(w)
     # stretches between gaps; a Python loop over them (gaps are rare in a recording)
     for seg in np.split(np.arange(n), np.flatnonzero(is_gap)):

@@ -29,7 +29,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 from ..core.config import from_mapping, load_yaml
 from ..core.errors import ConfigError, ImuCalibError
-from ..core.types import FloatArray
+from ..core.types import GAP_PERIODS, FloatArray
 from ..msg_adapters.convert import stamp_ns_from_time, time_msg_from_ns  # noqa: F401
 
 T = TypeVar('T')
@@ -382,7 +382,7 @@ class StreamCompensation:
             if self.measured_period_s is None and dn > 0:
                 self._learn(dn)
             d = dn * 1e-9
-            if period is not None and 0.0 < d <= 1.5 * period:
+            if period is not None and 0.0 < d <= GAP_PERIODS * period:
                 p = prev[1]
                 wd = ((gyro[0] - p[0]) / d, (gyro[1] - p[1]) / d, (gyro[2] - p[2]) / d)
                 dt_s = d
