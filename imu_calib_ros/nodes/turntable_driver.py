@@ -82,7 +82,11 @@ def trajectory_from_profile(profile: Any, point_period_s: float,
     # the 1 ms between the two the quintic's error is ~ step x (1 ms)^2 / 60 (1e-7 rad),
     # where the grid alone left 2e-4 rad (A = 30 deg, T = 2 s, 0.05 s points)
     pre = bp[1:-1] - BREAKPOINT_LEAD_S
-    t = np.union1d(np.union1d(bp, pre[pre > 0.0]), np.linspace(0.0, t_end, n_grid + 1))
+    must = np.union1d(bp, pre[pre > 0.0])
+    grid = np.linspace(0.0, t_end, n_grid + 1)
+    # grid points next to a breakpoint give way to it (never the breakpoint to them)
+    near = np.abs(grid[:, None] - must[None, :]).min(axis=1) <= 0.5 * BREAKPOINT_LEAD_S
+    t = np.union1d(must, grid[~near])
     keep = np.concatenate([[True], np.diff(t) > 0.5 * BREAKPOINT_LEAD_S])  # near-duplicates
     t = t[keep]
     if t[-1] < t_end:

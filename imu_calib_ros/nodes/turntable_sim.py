@@ -246,7 +246,12 @@ class TurntableSimNode(Node):
             self._truth_errors = result.truth.errors
             self._true_fixture = result.true_fixture
             if self.config.truth_file:
-                result.truth.save(self.config.truth_file)
+                truth = result.truth
+                if not self.config.plan:  # the first chunk is a hold, not the run: no
+                    # end-of-run bias (the drift restarts with every chunk)
+                    truth = dataclasses.replace(truth, extra={
+                        k: v for k, v in truth.extra.items() if k != 'bias_at_end'})
+                truth.save(self.config.truth_file)
                 self.get_logger().info(f'true calibration written to {self.config.truth_file}')
         chunk = _Chunk(start_ns, profile, result.imu, result.joints)
         self._chunks.append(chunk)
@@ -276,7 +281,9 @@ class TurntableSimNode(Node):
         at the stamp, from the state at the stamp; the samples already published up to now
         stay as they were (the start of a trajectory leaves the table's state with zero
         velocity only if its first point is that state, as the driver's lead-in is). Further
-        in the past: from now, with a warning. In the future: hold until then.
+        in the past: from now, with a warning. In the future: the current motion goes on
+        until then (holding its end state if it ends first), and the trajectory starts from
+        the state there.
         """
         cut = self._last_imu_ns
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
@@ -302,12 +309,14 @@ class TurntableSimNode(Node):
         except (PlanError, ConfigError) as exc:
             self.get_logger().error(f'trajectory refused: {exc}')
             return
-        if chunk_ns > cut:  # hold where the table is until the stamp
-            q, _, _ = self._state_at(cut)
-            self._chunks = [c for c in self._chunks if c.start_ns < cut]
-            self._append(QuinticProfile.hold(self.joint_names, q, (chunk_ns - cut) * 1e-9), cut)
-        else:
-            self._chunks = [c for c in self._chunks if c.start_ns < chunk_ns]
+        # the motion so far runs on until the new start (the controller's behaviour); if it
+        # ends before a future stamp, the table holds its end state until then
+        self._chunks = [c for c in self._chunks if c.start_ns < chunk_ns]
+        last = self._chunks[-1] if self._chunks else None
+        if last is not None and last.end_ns < chunk_ns:
+            q, _, _ = last.state_at(last.end_ns)
+            self._append(QuinticProfile.hold(self.joint_names, q,
+                                             (chunk_ns - last.end_ns) * 1e-9), last.end_ns)
         self._append(profile, chunk_ns)
         self.get_logger().info(f'following trajectory of {len(msg.points)} points, '
                                f'{profile.duration_s:.2f} s, from {start * 1e-9:.3f} s')

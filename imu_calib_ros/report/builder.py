@@ -87,7 +87,9 @@ def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> s
         head += (f'<th>{html.escape(name)}</th><th>&sigma;</th>'
                  + ('<th>err</th><th>err/&sigma;</th>' if truth is not None else ''))
     rows = [head + '</tr>']
-    # biases: the turn-on value plus the simulated drift at the end, which the EKF tracks
+    # biases: the turn-on value plus the simulated drift at the end, which the EKF tracks;
+    # the papers' methods average over their windows instead, so for them this truth is off
+    # by the in-run drift (nav grade: 0.0005 deg/h, 2 ug Gauss-Markov sigma)
     tracked = truth.tracked_truth() if truth is not None else None
     for fld, label, k, unit, key in ROWS:
         for idx in _entries(fld):
