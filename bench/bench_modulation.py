@@ -60,6 +60,12 @@ def main() -> None:
         for ai, ax in enumerate('XYZ'):
             print(f'{q + " " + ax + " [" + unit + "]":24s}'
                   + ''.join(f'{rows[h][qi][ai]:12.3f}' for h in heads))
+    horiz = {h: float(np.max(np.abs(rows[h][0][:2]))) for h in heads}
+    best = min((h for h in heads if h != 'static'), key=lambda h: horiz[h])
+    print('SUMMARY modulation: largest horizontal attitude error after 300 s: '
+          + ', '.join(f'{h} {horiz[h]:.3g} deg' for h in heads)
+          + f'; best {best}, {horiz["static"] / horiz[best]:.0f}x below static '
+          '(the heading error, about the spin axis, is not modulated)')
 
 
 if __name__ == '__main__':
