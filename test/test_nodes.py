@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import random
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -45,8 +46,8 @@ def start(module: str, params: dict[str, Any], cwd: Path) -> subprocess.Popen[by
     return start_node(module, params, cwd)
 
 
-def stop(proc: subprocess.Popen[bytes]) -> str:
-    return stop_node(proc, wait_s=10.0)
+def stop(proc: subprocess.Popen[bytes], sig: int = signal.SIGINT) -> str:
+    return stop_node(proc, sig, wait_s=10.0)
 
 
 def known_calibration(tmp: Path, frame_id: str = 'imu_link') -> tuple[CalibrationResult, Path]:
@@ -98,6 +99,8 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
         log = stop(proc)
         ros.destroy_subscription(sub)
         ros.destroy_publisher(pub)
+    assert proc.returncode == 0, (proc.returncode, log)
+
     out_stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got])
     np.testing.assert_array_equal(out_stamps, stamps, err_msg=log)
     assert all(m.header.frame_id == 'imu_link' for m in got)
@@ -125,6 +128,25 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
     var_w = np.array([m.angular_velocity_covariance[0] for m in got])
     assert np.all(var_w >= g.gyro_noise_rad_s_rt_hz ** 2 / 0.005 * (1 - 1e-12))
     assert np.all(var_w >= calib.sigma.gyro_bias_rad_s[0] ** 2)
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_compensator_stops_cleanly_on_a_signal(ros: Node, tmp_path: Path, sig: int) -> None:
+    """Idle (no input), then SIGINT or SIGTERM: exit status 0. Its input thread, left
+    waiting in rcl while the node and the context went away, aborted the process (SIGABRT,
+    'terminate called without an active exception', exit 134)."""
+    from sensor_msgs.msg import Imu
+    _, path = known_calibration(tmp_path)
+    proc = start('compensator', {'calibration_file': str(path)}, tmp_path)
+    sub = ros.create_subscription(Imu, 'imu/data_corrected', lambda m: None, reliable_qos(10))
+    try:
+        assert spin_until(ros, lambda: sub.get_publisher_count() > 0, 60.0), stop(proc)
+        time.sleep(1.0)
+    finally:
+        log = stop(proc, sig)
+        ros.destroy_subscription(sub)
+    assert proc.returncode == 0, (proc.returncode, log)
+    assert 'terminate called' not in log, log
 
 
 def test_compensator_refuses_other_frame_and_bad_file(ros: Node, tmp_path: Path) -> None:

@@ -146,6 +146,12 @@ class CompensatorNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(arr)
 
+    def destroy_node(self) -> None:
+        """Stop the input thread first: a thread still waiting in rcl when the node and
+        the context go away aborted the process (SIGABRT, exit 134) on SIGINT/SIGTERM."""
+        self._sub.stop()
+        super().destroy_node()
+
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``compensator``."""
