@@ -14,7 +14,8 @@ from imu_calib_ros.core.calibration import CalibrationResult
 def bag(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp('replay')
     assert main(['simulate', '--fixture', 'three_axis', '--plan', 'demo_short', '--imu',
-                 'nav_grade', '--rate', '100', '--seed', '4', '--output', str(d / 'bag')]) == 0
+                 'nav_grade', '--rate', '100', '--seed', '4', '--frame-id', 'imu_front',
+                 '--output', str(d / 'bag')]) == 0
     return d
 
 
@@ -24,6 +25,8 @@ def test_replay_matches_truth_within_sigma(bag: Path) -> None:
                  '--iterations', '1', '--quiet']) == 0
     calib = CalibrationResult.load(out)
     truth = CalibrationResult.load(bag / 'truth.yaml')
+    # the calibration belongs to the frame of the bag's IMU messages
+    assert calib.frame_id == truth.frame_id == 'imu_front'
     est = calib.errors.as_vector()
     tru = truth.errors.as_vector()
     sig = calib.sigma.as_vector()

@@ -144,6 +144,7 @@ class CalibrationEstimator:
             self._rho = init.lever_arm_imu_m.copy()
             self._mount = init.mounting_rotvec_rad.copy()
         self._errors = self._make_errors()
+        self.frame_id = ''  # header.frame_id of the first accepted IMU data
         self._running = False
         self._nav: Strapdown | None = None
         self._filter: ErrorStateFilter | None = None
@@ -333,14 +334,20 @@ class CalibrationEstimator:
             mount = full[lay.slices['mounting']].copy()
         return tg, ta, rho, mount
 
-    def estimate(self, frame_id: str = 'imu_link') -> Any:
+    def _frame(self) -> str:
+        """The frame of the calibration: the configured one, else that of the data."""
+        return self.guard_config.frame_id or self.frame_id or 'imu_link'
+
+    def estimate(self, frame_id: str | None = None) -> Any:
         """The calibration as a :class:`~imu_calib_ros.core.calibration.CalibrationResult`.
 
         Estimated groups carry their filter sigma; the others their assumed value (zero) and
-        prior sigma, and are listed as fixed (CONTRACT 4).
+        prior sigma, and are listed as fixed (CONTRACT 4). ``frame_id`` None: the configured
+        frame, else the ``header.frame_id`` of the data, else ``imu_link``.
         """
         st = self.estimate_state()
-        return self._result_from_state(st, frame_id, lambda sd: {'estimator': self._extra(st, sd)})
+        return self._result_from_state(st, frame_id or self._frame(),
+                                       lambda sd: {'estimator': self._extra(st, sd)})
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
@@ -497,6 +504,8 @@ class CalibrationEstimator:
         verdict = self._guard.check_imu(t, w, f, frame_id, diverged=self._diverged is not None)
         self._sync_input_counters()
         keep = verdict.keep
+        if frame_id and not self.frame_id and keep.any():
+            self.frame_id = frame_id  # the calibration belongs to the frame of its data
         if not keep.any():
             return
         t, w, f = t[keep], w[keep], f[keep]
@@ -757,7 +766,7 @@ class CalibrationEstimator:
             return None
         if self._last_good_cache is None or self._last_good_cache[0] != id(st):
             self._last_good_cache = (id(st), self._result_from_state(
-                st, self.guard_config.frame_id or 'imu_link',
+                st, self._frame(),
                 lambda sd: {'estimator': {
                     'last_good_snapshot': True,
                     'lever_arm_imu_m': [float(v) for v in st.lever_arm_imu_m],
