@@ -112,3 +112,17 @@ def test_report_renders_in_chromium(srt_result, tmp_path):
     dark = (img.mean(axis=2) < 0.5).sum()
     coloured = (img.max(axis=2) - img.min(axis=2) > 0.2).sum()
     assert dark > 5000 and coloured > 2000, (dark, coloured)
+
+
+@pytest.mark.parametrize('where', ['missing_dir/r.html', '.'])
+def test_report_cli_bad_output_is_one_line_and_writes_nothing(srt_result, tmp_path, capsys,
+                                                              where):
+    from imu_calib_ros.cli import main
+    calib, _ = srt_result
+    p = tmp_path / 'c.yaml'
+    calib.save(p)
+    before = sorted(tmp_path.rglob('*'))
+    assert main(['report', str(p), '--output', str(tmp_path / where)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and '--output' in err[0], err
+    assert sorted(tmp_path.rglob('*')) == before

@@ -95,16 +95,25 @@ def _nav_velocity(args: argparse.Namespace, calib):  # noqa: ANN001, ANN202
 def run(args: argparse.Namespace) -> int:
     """Build and write the page atomically."""
     from ..core.calibration import CalibrationResult
+    from ..core.errors import InputError
     from ..report import build_report
+    out = Path(args.output)
+    if out.is_dir():
+        raise InputError(f'--output {out} is a directory; give a file name like report.html')
+    if not out.parent.is_dir():
+        raise InputError(f'--output: directory {out.parent} does not exist')
     calib = CalibrationResult.load(args.calib)
     truth = CalibrationResult.load(args.truth) if args.truth else None
     compare = [(Path(p).stem, CalibrationResult.load(p)) for p in args.compare]
     nav = _nav_velocity(args, calib) if args.bag else None
     page = build_report(calib, truth, compare, title=f'IMU calibration: {args.calib}',
                         nav_velocity=nav)
-    out = Path(args.output)
     tmp = out.with_name(f'.{out.name}.tmp')
-    tmp.write_text(page, encoding='utf-8')
-    os.replace(tmp, out)
+    try:
+        tmp.write_text(page, encoding='utf-8')
+        os.replace(tmp, out)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f'--output {out}: cannot write ({exc.strerror})') from None
     print(f'wrote {out}')
     return 0
