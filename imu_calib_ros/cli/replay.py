@@ -61,6 +61,20 @@ def _summary(calib: Any) -> str:
     return '\n'.join(lines)
 
 
+def _srt_note(info: dict[str, Any]) -> None:
+    """One stderr line when the SRT could not determine everything (merged sequences)."""
+    seqs = [q['label'] for q in info.get('sequences', [])]
+    merged = [q for q in seqs if not q.startswith('srt:')]
+    not_est = info.get('not_estimated', [])
+    if not (merged or not_est):
+        return
+    print(f'imu-calib replay: note: SRT found {len(seqs)} rotation sequences, '
+          f'{len(seqs) - len(merged)} of them from Savage\'s Table 1 (the others are '
+          'several run together: separating them needs dwells of >= 5 s; savage_srt has '
+          '10 s); not estimated, kept at the grade\'s prior and listed as fixed: '
+          f'{", ".join(not_est) or "none"}', file=sys.stderr)
+
+
 def run(args: Any) -> int:
     """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
     from ..core.fixture import load_fixture
@@ -89,6 +103,8 @@ def run(args: Any) -> int:
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise InputError(f'--method {args.method}: {msg} (does the bag {args.bag} contain '
                              f'the plan this method needs?)') from exc
+        if args.method == 'srt':
+            _srt_note(calib.extra.get('srt', {}))
     else:
         from ..core.estimator import load_estimator_config
         from ..core.estimator.replay import replay

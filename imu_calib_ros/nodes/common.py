@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import signal
 import sys
 import threading
 import types
@@ -233,6 +234,13 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> in
     destroyed (e.g. to save the latest estimate). A :class:`ImuCalibError` while building
     the node (bad parameter, file) is printed as one line on stderr and gives exit status 2.
     """
+    # SIGINT: rclpy's handler shuts the context down (the spin then ends) and chains to the
+    # Python handler; Python's default raises KeyboardInterrupt wherever the main thread is,
+    # e.g. half-way through building an executor Task ("Exception ignored in
+    # Future.__del__ ... 'Task' object has no attribute '_exception'" at shutdown). A no-op
+    # Python handler leaves the shutdown to rclpy alone.
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, lambda signum, frame: None)
     rclpy.init(args=args if args is not None else sys.argv)
     node: Node | None = None
     status = 0
