@@ -183,3 +183,19 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
     write_bag(bad, imu, joints)
     out = tmp_path / 'c.yaml'
     check_failed(*replay(capsys, bad, out), out, 'diverged')
+
+
+def test_wrong_fixture_is_one_line(bags: Path, tmp_path: Path, capsys) -> None:
+    """A bag from the three-axis table replayed with the two-axis fixture: the filter
+    diverges; the user gets the one error line (the core's own log lines about the
+    rollback and the rejected samples, two more lines before, are held back on failure)."""
+    import subprocess
+    import sys
+    out = tmp_path / 'c.yaml'
+    # a process of its own: pytest's log capture would hide the core's log lines in-process
+    cli = 'import sys; from imu_calib_ros.cli import main; sys.exit(main())'
+    p = subprocess.run([sys.executable, '-c', cli, 'replay',
+                        str(bags / 'moving' / 'bag.mcap'), '--fixture', 'savage_2axis',
+                        '--output', str(out), '--quiet'], capture_output=True, text=True,
+                       timeout=300)
+    check_failed(p.returncode, p.stderr.strip(), out, 'diverged')

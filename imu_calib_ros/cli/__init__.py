@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 
 from ..core.errors import ImuCalibError
@@ -25,18 +26,48 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Held(logging.Handler):
+    """Holds the core's log records while a sub-command runs."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Console-script entry point."""
+    """Console-script entry point.
+
+    The core's warnings (e.g. rejected input samples) are printed as
+    ``imu-calib CMD: warning: ...`` after a successful run; after a failure only the one
+    error line is printed (CONTRACT 5), which already says what went wrong.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
+    log = logging.getLogger('imu_calib_ros')
+    held = _Held()
+    log.addHandler(held)
+    propagate, log.propagate = log.propagate, False
+    status = 2
     try:
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        return status
     except ImuCalibError as exc:
         print(f'imu-calib {args.command}: error: {exc}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f'imu-calib {args.command}: interrupted', file=sys.stderr)
+        status = 130
         return 130
+    finally:
+        log.removeHandler(held)
+        log.propagate = propagate
+        if status == 0:
+            for r in held.records:
+                print(f'imu-calib {args.command}: {r.levelname.lower()}: {r.getMessage()}',
+                      file=sys.stderr)
 
 
 if __name__ == '__main__':

@@ -108,8 +108,8 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
     health = est.health()
     if health['status'] == 'ERROR':
         # A diverged filter never becomes a calibration file (issue 6).
-        raise InputError(f'the estimator diverged ({health["message"]}); no calibration '
-                         'written: check the IMU grade, units and the fixture file')
+        raise InputError(f'the estimator diverged ({health["divergence_reason"]}); no '
+                         'calibration written: check the IMU grade, units and the fixture file')
     return est
 
 
