@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import signal
 import sys
 import threading
@@ -256,8 +257,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> in
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ImuCalibError as exc:
-        print(f'{getattr(node, "get_name", lambda: "node")()}: error: {exc}', file=sys.stderr,
-              flush=True)
+        name = node.get_name() if node is not None else (
+            os.path.splitext(os.path.basename(sys.argv[0]))[0] or 'node')  # console script
+        print(f'{name}: error: {exc}', file=sys.stderr, flush=True)
         status = 2
     except SystemExit as exc:  # a node asked to stop (e.g. plan finished)
         status = int(exc.code or 0)
