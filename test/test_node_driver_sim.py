@@ -89,3 +89,31 @@ def test_driver_fails_when_the_table_does_not_follow(tmp_path: Path) -> None:
     assert rc == 1, log
     assert 'did not follow the plan' in log, log
     assert 'trajectory refused' in sim_log and 'unknown joints' in sim_log, sim_log
+
+
+def test_driver_on_another_clock_than_the_table_fails(tmp_path: Path) -> None:
+    """Driver on wall time, simulated table on its /clock: no joint state falls inside the
+    plan's window, so nothing was checked; that is a failure (it passed as 0.0000 deg)."""
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text('name: short\nsteps:\n  - move: {joint: outer, by_deg: 10, duration_s: 1}\n')
+    sim = start_node('turntable_sim', {'speed': 2.0, 'imu_rate_hz': 100.0,
+                                       'wait_for_subscribers': 0}, tmp_path)
+    try:
+        rc, log = _run_driver(tmp_path, plan=str(plan))  # no use_sim_time
+    finally:
+        stop_node(sim)
+    assert rc == 1, log
+    assert 'different clocks' in log, log
+
+
+def test_driver_interrupted_before_the_plan_ends_fails(tmp_path: Path) -> None:
+    import signal
+    import time
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text('name: long\nsteps:\n  - dwell: {duration_s: 60}\n')
+    drv = start_node('turntable_driver', {'plan': str(plan), 'wait_for_subscribers': 0,
+                                          'wait_timeout_s': 0.5}, tmp_path)
+    time.sleep(4.0)
+    log = stop_node(drv, signal.SIGINT)
+    assert drv.returncode == 1, log
+    assert 'interrupted before the plan ended' in log, log

@@ -32,6 +32,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from ..core.errors import ImuCalibError
 from ..core.types import FloatArray
 from ..msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
 from .common import declare_config, reliable_qos, run_node, sensor_qos
@@ -132,6 +133,8 @@ class TurntableDriverNode(Node):
         self._t0_ns: int | None = None
         self.max_error_rad = 0.0
         self.states_seen = 0
+        self.states_checked = 0  # joint states inside the plan's time window
+        self.done = False
         self._wall_start = time.monotonic()
         self.status = 0
         self.create_timer(0.05, self._on_timer)
@@ -148,6 +151,7 @@ class TurntableDriverNode(Node):
         self.states_seen += 1
         t = (sample.stamp_ns - self._t0_ns) * 1e-9 - self.config.lead_in_s
         if 0.0 <= t <= self._profile.duration_s:
+            self.states_checked += 1
             q_plan, _, _ = self._profile.evaluate(np.array([t]))
             err = np.angle(np.exp(1j * (q - q_plan[0])))  # wrapped or continuous both work
             self.max_error_rad = max(self.max_error_rad, float(np.max(np.abs(err))))
@@ -167,13 +171,24 @@ class TurntableDriverNode(Node):
                                    * 1e9)
         if now_ns >= end_ns:
             err_deg = math.degrees(self.max_error_rad)
-            ok = self.states_seen > 0 and err_deg <= cfg.max_tracking_error_deg
+            ok = self.states_checked > 0 and err_deg <= cfg.max_tracking_error_deg
+            self.done = True
             self.get_logger().info(f'plan done: {self.states_seen} joint states, largest '
                                    f'tracking error {err_deg:.4f} deg')
-            if not ok:
+            if self.states_seen and not self.states_checked:
+                self.get_logger().error(
+                    'no joint state was stamped inside the plan\'s time window: the table '
+                    'and this node are on different clocks (set use_sim_time:=true when the '
+                    'table publishes /clock)')
+            elif not ok:
                 self.get_logger().error('the table did not follow the plan (no joint states '
                                         'or tracking error above max_tracking_error_deg)')
             raise SystemExit(0 if ok else 1)
+
+    def on_shutdown(self) -> None:
+        """SIGINT/SIGTERM before the plan ended: exit status 1 (the plan did not run)."""
+        if not self.done:
+            raise ImuCalibError('interrupted before the plan ended')
 
     def _start(self) -> None:
         from ..core.plans import build_profile
