@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import signal
 import subprocess
 import sys
 import time
@@ -87,3 +88,18 @@ def test_bag_player_without_bag_says_so() -> None:
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert 'bag is required' in out.stderr
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_bag_player_stops_cleanly_mid_play(bag: Path, sig: int) -> None:
+    """A signal while playing: exit status 0 and no traceback (publishing on the context the
+    signal had just shut down raised RCLError, exit 1)."""
+    proc = subprocess.Popen([sys.executable, '-m', 'imu_calib_ros.nodes.bag_player',
+                             '--ros-args', '-p', f'bag:={bag}', '-p', 'wait_for_subscribers:=0',
+                             '-p', 'rate:=0.5'],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    time.sleep(4.0)
+    proc.send_signal(sig)
+    out = proc.communicate(timeout=30)[0].decode(errors='replace')
+    assert proc.returncode == 0, out
+    assert 'Traceback' not in out, out

@@ -93,15 +93,20 @@ class BagPlayer(Node):
             delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            if last_clock is None or sample.stamp_ns - last_clock >= period_ns:
-                self._publish_clock(sample.stamp_ns)
-                last_clock = sample.stamp_ns
-            if isinstance(sample, ImuSample):
-                self._imu_pub.publish(imu_msg_from_sample(sample))
-            else:
-                self._joint_pub.publish(joint_state_msg_from_sample(sample))
+            try:
+                if last_clock is None or sample.stamp_ns - last_clock >= period_ns:
+                    self._publish_clock(sample.stamp_ns)
+                    last_clock = sample.stamp_ns
+                if isinstance(sample, ImuSample):
+                    self._imu_pub.publish(imu_msg_from_sample(sample))
+                else:
+                    self._joint_pub.publish(joint_state_msg_from_sample(sample))
+            except Exception:  # noqa: BLE001 - a signal shut the context down mid-publish
+                if not rclpy.ok():
+                    return
+                raise
             self.published += 1
-        if last_clock is not None and t0_bag is not None:
+        if last_clock is not None and t0_bag is not None and rclpy.ok():
             self._publish_clock(sample.stamp_ns)
 
     def play(self) -> None:
@@ -122,7 +127,7 @@ def main(args: list[str] | None = None) -> int:
         node.play()
         time.sleep(0.2)  # let reliable writers hand over the last messages
     except (KeyboardInterrupt, ExternalShutdownException):
-        status = 130
+        pass  # stopped on request (SIGINT/SIGTERM), like the other nodes: status 0
     except ImuCalibError as exc:
         print(f'bag_player: error: {exc}', file=sys.stderr, flush=True)
         status = 2
