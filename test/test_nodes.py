@@ -376,3 +376,23 @@ def test_compensator_warns_when_the_configured_rate_is_wrong(ros: Node, tmp_path
     assert float(values['imu_rate_measured_hz']) == pytest.approx(100.0, rel=1e-9)
     assert '200' in st.message and '100' in st.message, st.message
     assert log.count('configured imu_rate_hz 200') == 1, log
+
+
+def test_save_without_data_is_refused(ros: Node, tmp_path: Path) -> None:
+    """No IMU data yet: ~/save_calibration fails and writes nothing (a file of prior values
+    would look like a calibration)."""
+    from std_srvs.srv import Trigger
+    out = tmp_path / 'nothing.yaml'
+    cal = start('calibration', {'output_file': str(out)}, tmp_path)
+    save = ros.create_client(Trigger, '/calibration/save_calibration')
+    try:
+        assert save.wait_for_service(timeout_sec=60.0), stop(cal)
+        fut = save.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=90.0)
+        res = fut.result()
+    finally:
+        log = stop(cal)
+        ros.destroy_client(save)
+    assert res is not None and not res.success, log
+    assert 'nothing to save' in res.message, res.message
+    assert not out.exists()

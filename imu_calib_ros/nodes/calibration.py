@@ -456,6 +456,13 @@ class CalibrationNode(Node):
         good, latest = self.runner.last_good, self.runner.latest_estimate
         if good is None:
             return False, f'no usable estimate yet{": " + latest.error if latest else ""}'
+        health = good.result.extra.get('estimator', {}).get('health', {})
+        if not health.get('imu_processed', 0):
+            # a file of prior values would look like a calibration: refuse (README: never
+            # silently wrong)
+            return False, ('nothing to save: the estimator has not used any IMU data yet '
+                           f'({health.get("imu_samples", 0)} samples received; it starts at a '
+                           'stationary window with joint states)')
         try:
             good.result.save(self.config.output_file)
         except (ImuCalibError, OSError) as exc:
