@@ -170,6 +170,32 @@ def test_samples_lost_upstream_are_counted(ros: Node, tmp_path: Path) -> None:
     assert 'Traceback' not in log, log
 
 
+def test_joint_states_stopping_mid_run_is_an_error(ros: Node, tmp_path: Path) -> None:
+    """Joint states for the first second, then IMU alone for 1.5 s: /diagnostics turns
+    ERROR naming the stop once the IMU stamps run joint_timeout_s (0.5 s) past the last
+    joint state. It stayed 'calibrating', OK, before."""
+    proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0, 'joint_timeout_s': 0.5,
+                  'estimator_mode': 'thread'}, tmp_path)
+    w = Wiring(ros)
+    try:
+        assert w.wait_matched(), stop(proc)
+        time.sleep(1.0)
+        stream(w, 7_000_000_000, 200, 5_000_000, JOINTS)
+        stream(w, 8_000_000_000, 300, 5_000_000, None)
+
+        def stopped() -> bool:
+            s = last_status(w.diags)
+            return s is not None and 'joint_states stopped' in s.message
+        assert spin_until(ros, stopped, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
+        status = last_status(w.diags)
+    finally:
+        log = stop(proc)
+        w.close()
+    from diagnostic_msgs.msg import DiagnosticStatus
+    assert status.level == DiagnosticStatus.ERROR, status
+    assert 'joint_states stopped' in log, log
+
+
 def test_bad_samples_never_published_counted_by_reason_and_joint_error(ros: Node,
                                                                        tmp_path: Path) -> None:
     """NaN/inf and a foreign frame_id: rejected, counted by reason in /diagnostics, one

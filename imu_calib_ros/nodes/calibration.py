@@ -193,6 +193,7 @@ class CalibrationNode(Node):
         self._last_imu_ns: int | None = None
         self._first_imu_ns: int | None = None
         self._joint_ok = False
+        self._last_joint_ns: int | None = None  # stamp of the last good joint state
         self._last_rx = None
         self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
         self._imu_sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
@@ -288,6 +289,7 @@ class CalibrationNode(Node):
         if not finite(sample.positions_rad):
             return self._reject('non_finite')
         self._joint_ok = True
+        self._last_joint_ns = sample.stamp_ns
         self._pending.append(sample)
 
     def _on_time_jump(self, jump: Any) -> None:
@@ -297,6 +299,7 @@ class CalibrationNode(Node):
         self.counts['time_jumps_backward'] += 1
         self._pending.clear()
         self._last_imu_ns = None
+        self._last_joint_ns = None
         self.compensation.reset()
         self.runner.command('reset_navigation')
         self.get_logger().warn(f'time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: '
@@ -434,6 +437,13 @@ class CalibrationNode(Node):
                    f'{self.config.joint_timeout_s:g} s of IMU data')
             self.get_logger().error(msg, throttle_duration_sec=self.config.log_throttle_s)
             return DiagnosticStatus.ERROR, msg
+        last_j, last_i = self._last_joint_ns, self._last_imu_ns
+        if self._joint_ok and last_j is not None and last_i is not None and \
+                (last_i - last_j) * 1e-9 > self.config.joint_timeout_s:
+            msg = (f'joint_states stopped: none with the fixture joints [{expected}] for '
+                   f'{(last_i - last_j) * 1e-9:.1f} s of IMU data')
+            self.get_logger().error(msg, throttle_duration_sec=self.config.log_throttle_s)
+            return DiagnosticStatus.ERROR, msg
         if snap is not None and snap.error:
             return DiagnosticStatus.ERROR, snap.error
         if self.compensation.rate_mismatch:
@@ -481,6 +491,7 @@ class CalibrationNode(Node):
         ok = self.runner.request('reset', 30.0)
         self.rejected = {k: 0 for k in self.rejected}
         self._last_imu_ns = None
+        self._last_joint_ns = None
         self.compensation.reset()
         self._hand_over()
         response.success = ok
