@@ -301,7 +301,9 @@ def test_signal_during_live_run_saves_latest_estimate(ros: Node, tmp_path: Path,
     try:
         assert w.wait_matched(), stop(proc)
         time.sleep(1.0)
-        good = stream(w, 9_000_000_000, 200, 5_000_000, JOINTS)
+        # 3 s at rest: past the 2 s alignment window, so the estimator has used data (a
+        # save before that is refused: nothing but the prior to write)
+        good = stream(w, 9_000_000_000, 600, 5_000_000, JOINTS)
         assert spin_until(ros, lambda: len(w.corrected) >= len(good), 30.0)
         time.sleep(1.0)  # a few filter-timer hand-overs
         log = stop(proc, sig)
