@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..core.errors import InputError
 from ..core.fixture import load_fixture
 from ..core.methods.modulation import demodulate
 
@@ -25,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help='continuous mode: bias from the preceding revolution only')
     p.add_argument('--imu-topic', default='/imu/data_raw')
     p.add_argument('--joint-topic', default='/joint_states')
-    p.add_argument('--overwrite', action='store_true')
+    p.add_argument('--force', '--overwrite', dest='overwrite', action='store_true',
+                   help='replace an existing output (as simulate --force)')
     p.set_defaults(func=run)
 
 
@@ -34,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from ..msg_adapters.bag import read_bag, write_bag
     fixture = load_fixture(args.fixture)
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
+    if args.causal and args.mode != 'continuous':
+        raise InputError(f'--causal applies to --mode continuous only, not {args.mode}')
     kw = {'joint': args.joint}
     if args.mode == 'continuous':
         kw['causal'] = args.causal
