@@ -263,6 +263,11 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> in
         status = 2
     except SystemExit as exc:  # a node asked to stop (e.g. plan finished)
         status = int(exc.code or 0)
+    except Exception:  # noqa: BLE001 - see below
+        # a callback that was publishing when a signal shut the context down raises
+        # RCLError ("publisher's context is invalid"): that is the requested stop
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             hook = getattr(node, 'on_shutdown', None)
