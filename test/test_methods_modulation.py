@@ -105,3 +105,71 @@ def test_continuous_after_a_gap_uses_the_nominal_period():
                                                                       (far.size, 3)), atol=1e-6)
     np.testing.assert_allclose(out.gyro_rad_s[far], np.broadcast_to(w_b + axis * (axis @ bw),
                                                                      (far.size, 3)), atol=1e-6)
+
+
+def test_streaming_with_lost_samples_equals_offline_and_stays_near_the_full_data():
+    """Bursts of lost IMU samples (10 %, 1-5 in a row) and joint states (up to 0.3 s): the
+    streaming demodulator (the node's) equals the offline causal one on the same data, and
+    at constant rate the accelerometers stay within 2 mg of the result without losses (a
+    150 deg/s MEMS spin: the lost angles leave the revolution mean of a near-constant bias
+    almost unchanged)."""
+    import dataclasses
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.imu_grade import load_grade
+    from imu_calib_ros.core.plans import build_profile, plan_from_dict
+    from imu_calib_ros.core.simulator import SimConfig, simulate
+    fx = load_fixture('three_axis')
+    plan = plan_from_dict({'name': 'm', 'steps': [
+        {'dwell': {'duration_s': 2}}, {'spin': {'joint': 'outer', 'rate_deg_s': 150,
+                                               'duration_s': 30}}]})
+    sim = simulate(fx, build_profile(plan, fx), load_grade('mems_mti1'),
+                   SimConfig(imu_rate_hz=100, seed=7))
+    imu, jb = sim.imu, sim.joints
+    rng = np.random.default_rng(1)
+    keep = np.ones(len(imu), bool)
+    for s in rng.choice(len(imu) - 20, 110, replace=False):
+        keep[s:s + rng.integers(1, 6)] = False
+    keepj = np.ones(len(jb), bool)
+    for s in rng.choice(len(jb) - 40, 100, replace=False):
+        keepj[s:s + rng.integers(1, 30)] = False
+    sub = dataclasses.replace(imu, stamps_ns=imu.stamps_ns[keep],
+                              gyro_rad_s=imu.gyro_rad_s[keep], accel_m_s2=imu.accel_m_s2[keep])
+    jsub = dataclasses.replace(jb, stamps_ns=jb.stamps_ns[keepj],
+                               positions_rad=jb.positions_rad[keepj],
+                               velocities_rad_s=None if jb.velocities_rad_s is None
+                               else jb.velocities_rad_s[keepj])
+    full = modulation.demodulate(imu, jb, fx, 'continuous', causal=True)
+    off = modulation.demodulate(sub, jsub, fx, 'continuous', causal=True)
+    k = list(fx.joint_names).index('outer')
+    q0 = jb.positions_rad[0].copy()
+    q0[k] = 0.0
+    d = modulation.StreamingDemodulator(fx.joint_axes_imu(q0)[k], 'outer', 'continuous')
+    out, i, j = [], 0, 0
+    while i < len(sub) or j < len(jsub):
+        if j < len(jsub) and (i >= len(sub) or jsub.stamps_ns[j] <= sub.stamps_ns[i]):
+            out += d.push_joint(jsub.sample(j))
+            j += 1
+        else:
+            out += d.push_imu(sub.sample(i))
+            i += 1
+    assert d.counters['gaps'] > 50 and len(out) > 2000
+    st = np.array([o.stamp_ns for o in out])
+    io = np.searchsorted(off.stamps_ns, st)
+    assert np.array_equal(off.stamps_ns[io], st)
+    np.testing.assert_allclose([o.accel_m_s2 for o in out], off.accel_m_s2[io], rtol=0,
+                               atol=1e-9)
+    np.testing.assert_allclose([o.gyro_rad_s for o in out], off.gyro_rad_s[io], rtol=0,
+                               atol=1e-9)
+    # at constant rate (after the spin-up), interpolating the joint angle across the lost
+    # joint states is exact: the losses leave the result near the loss-free one. (During
+    # the spin-up and spin-down they cannot: the angle between joint states is then not
+    # linear in time, and the platform rate taken from it is off.)
+    t0 = imu.stamps_ns[0]
+    steady = (st > t0 + 5_000_000_000) & (st < t0 + 29_000_000_000)
+    jf = np.searchsorted(full.stamps_ns, st[steady])
+    acc = np.array([o.accel_m_s2 for o in out])[steady]
+    gyr = np.array([o.gyro_rad_s for o in out])[steady]
+    assert np.abs(acc - full.accel_m_s2[jf]).max() < 2e-2
+    # the horizontal gyro moves by up to 4e-4 rad/s (measured), more than the noise of the
+    # lost samples explains: open (closing note), so not asserted here
+    assert np.all(np.isfinite(gyr))

@@ -77,15 +77,22 @@ def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: 
     a0, a1 = sgn * phi0, sgn * phi1
     c = sgn * centre
     w = a1 - a0
-    cw = np.concatenate([[0.0], np.cumsum(w)])
-    cx = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x * w[:, None], axis=0)])
+    cum_w = np.cumsum(w)
+    cum_x = np.cumsum(x * w[:, None], axis=0)
+    # knots at both ends of every sample: the cumulative sums rise inside a sample and stay
+    # flat over the angle a lost stretch (a gap, CONTRACT 1) would have covered. (One knot
+    # per sample end spread each sample after a gap over the gap's angle too.)
+    prev_w = np.concatenate([[0.0], cum_w[:-1]])
+    prev_x = np.concatenate([np.zeros((1, x.shape[1])), cum_x[:-1]])
+    cw = np.stack([prev_w, cum_w], axis=1).ravel()
+    cx = np.stack([prev_x, cum_x], axis=1).reshape(-1, x.shape[1])
     hi = c if causal else c + np.pi
     hi = np.clip(hi, a0[0] + 2 * np.pi, a1[-1])
     lo = hi - 2 * np.pi
     # the cumulative sums are piecewise linear in angle (x constant over a sample): exact
     # partial samples at both ends by interpolation (end angles of a turning platform are
     # monotonic; np.maximum.accumulate guards against encoder jitter)
-    edges = np.maximum.accumulate(np.concatenate([[a0[0]], a1]))
+    edges = np.maximum.accumulate(np.stack([a0, a1], axis=1).ravel())
     wsum = np.interp(hi, edges, cw) - np.interp(lo, edges, cw)
     xs = np.stack([np.interp(hi, edges, cx[:, k]) - np.interp(lo, edges, cx[:, k])
                    for k in range(x.shape[1])], axis=1)
@@ -239,8 +246,10 @@ class StreamingDemodulator:
         self._first: Any = None
         self._dt_nom_ns: float | None = None
         self._edges: list[float] = []  # raw joint angle at each accumulated sample's end
-        self._cw: list[float] = [0.0]  # cumulative angle
-        self._cx: list[FloatArray] = [np.zeros(6)]  # cumulative angle-weighted gyro, accel
+        self._cw: list[float] = []  # cumulative angle at each knot (both ends per sample)
+        self._cx: list[FloatArray] = []  # cumulative angle-weighted gyro, accel at each knot
+        self._acc_w = 0.0
+        self._acc_x = np.zeros(6)
         self._first_angle: float | None = None
         self._t_base_ns: int | None = None
         self.counters = {'imu_in': 0, 'joint_in': 0, 'published': 0, 'warming_up': 0,
@@ -327,22 +336,24 @@ class StreamingDemodulator:
         phi1 = float(np.interp(t1, tj, self._qj))
         gyro = np.asarray(s.gyro_rad_s, float)
         accel = np.asarray(s.accel_m_s2, float)
-        if not self._edges:
-            self._edges.append(phi0)
+        if self._first_angle is None:
             self._first_angle = phi0
         w = phi1 - phi0
-        self._edges.append(phi1)
-        self._cw.append(self._cw[-1] + w)
-        self._cx.append(self._cx[-1] + np.concatenate([gyro, accel]) * w)
+        # knots at both ends of the sample, flat over lost stretches (as offline)
+        acc_w, acc_x = self._acc_w + w, self._acc_x + np.concatenate([gyro, accel]) * w
+        self._edges += [phi0, phi1]
+        self._cw += [self._acc_w, acc_w]
+        self._cx += [self._acc_x, acc_x]
+        self._acc_w, self._acc_x = acc_w, acc_x
         # bounded history: only the last revolution is ever read; trim by angle (a count
         # derived from the current step grew without bound while the platform stood still)
         # and cap the count (a long stop between spins adds samples but no angle)
         if len(self._edges) > 64 and abs(phi1 - self._edges[len(self._edges) // 2]) > 3 * np.pi:
-            half = len(self._edges) // 2
+            half = len(self._edges) // 4 * 2  # whole samples (knot pairs)
             del self._edges[:half], self._cw[:half], self._cx[:half]
-        elif len(self._edges) > self.max_history:
-            del self._edges[:-self.max_history // 2], self._cw[:-self.max_history // 2]
-            del self._cx[:-self.max_history // 2]
+        elif len(self._edges) > 2 * self.max_history:
+            keep = self.max_history // 2 * 2
+            del self._edges[:-keep], self._cw[:-keep], self._cx[:-keep]
         sgn = 1.0 if w >= 0 else -1.0
         full = sgn * (phi1 - self._first_angle) >= 2 * np.pi
         if self._step is None:
