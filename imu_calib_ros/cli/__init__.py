@@ -10,8 +10,9 @@ import argparse
 import importlib
 import logging
 import sys
+from pathlib import Path
 
-from ..core.errors import ImuCalibError
+from ..core.errors import ImuCalibError, InputError
 
 SUBCOMMANDS = ('simulate', 'replay', 'report', 'modulate')
 
@@ -24,6 +25,14 @@ def build_parser() -> argparse.ArgumentParser:
     for name in SUBCOMMANDS:
         importlib.import_module(f'{__name__}.{name}').register(sub)
     return parser
+
+
+def check_output_file(out: Path, example: str) -> None:
+    """``--output`` must name a file in an existing directory (one line otherwise)."""
+    if out.is_dir():
+        raise InputError(f'--output {out} is a directory; give a file name like {example}')
+    if not out.parent.is_dir():
+        raise InputError(f'--output: directory {out.parent} does not exist')
 
 
 class _Held(logging.Handler):

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError
+from . import check_output_file
 from ..core.units import ENGINEERING
 
 METHODS = ('ekf', 'srt', 'oscillation')
@@ -83,10 +84,7 @@ def run(args: Any) -> int:
     out = Path(args.output)
     if args.iterations < 1:
         raise InputError(f'--iterations must be >= 1, got {args.iterations}')
-    if out.is_dir():
-        raise InputError(f'--output {out} is a directory; give a file name like calib.yaml')
-    if not out.parent.is_dir():
-        raise InputError(f'--output: directory {out.parent} does not exist')
+    check_output_file(out, 'calib.yaml')
     fixture = load_fixture(args.fixture)
     grade = load_grade(args.imu)
     if not Path(args.bag).exists():

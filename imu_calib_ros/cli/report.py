@@ -97,11 +97,9 @@ def run(args: argparse.Namespace) -> int:
     from ..core.calibration import CalibrationResult
     from ..core.errors import InputError
     from ..report import build_report
+    from . import check_output_file
     out = Path(args.output)
-    if out.is_dir():
-        raise InputError(f'--output {out} is a directory; give a file name like report.html')
-    if not out.parent.is_dir():
-        raise InputError(f'--output: directory {out.parent} does not exist')
+    check_output_file(out, 'report.html')
     calib = CalibrationResult.load(args.calib)
     truth = CalibrationResult.load(args.truth) if args.truth else None
     compare = [(Path(p).stem, CalibrationResult.load(p)) for p in args.compare]

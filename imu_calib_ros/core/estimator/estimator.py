@@ -131,18 +131,7 @@ class CalibrationEstimator:
     # ------------------------------------------------------------------ public API
     def reset(self) -> None:
         """Forget all data; back to waiting for a stationary window."""
-        init = self._initial
-        if init is None:
-            self._theta_g = np.zeros(em.N_GYRO)
-            self._theta_a = np.zeros(em.N_ACCEL)
-            q0 = np.zeros(self.fixture.n_joints)
-            self._rho = self.fixture.R_enu_imu(q0).T @ self.fixture.p_enu_m(q0)
-            self._mount = np.zeros(3)
-        else:
-            self._theta_g = init.theta_gyro.copy()
-            self._theta_a = init.theta_accel.copy()
-            self._rho = init.lever_arm_imu_m.copy()
-            self._mount = init.mounting_rotvec_rad.copy()
+        self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
         self._errors = self._make_errors()
         self.frame_id = ''  # header.frame_id of the first accepted IMU data
         self._running = False
@@ -258,14 +247,28 @@ class CalibrationEstimator:
         """True once the coarse alignment is done and the filter runs."""
         return self._running
 
+    def _nominal_lever_arm(self) -> FloatArray:
+        """The nominal fixture's reference-point offset from the axes, IMU frame."""
+        q0 = np.zeros(self.fixture.n_joints)
+        return self.fixture.R_enu_imu(q0).T @ self.fixture.p_enu_m(q0)
+
+    def _start_point(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(theta_gyro, theta_accel, lever arm, mounting)`` the filter starts from: the
+        starting estimate's, else the prior mean (fresh arrays)."""
+        init = self._initial
+        if init is None:
+            return (np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), self._nominal_lever_arm(),
+                    np.zeros(3))
+        return (init.theta_gyro.copy(), init.theta_accel.copy(), init.lever_arm_imu_m.copy(),
+                init.mounting_rotvec_rad.copy())
+
     def _prior_mean(self) -> FloatArray:
         """Where pass 1 starts, as calibration-state values: no sensor errors, the nominal
         fixture's lever arm, no mounting rotation."""
         lay = self.layout
         out = np.zeros(lay.n)
         if 'lever_arm' in lay.slices:
-            q0 = np.zeros(self.fixture.n_joints)
-            out[lay.slices['lever_arm']] = self.fixture.R_enu_imu(q0).T @ self.fixture.p_enu_m(q0)
+            out[lay.slices['lever_arm']] = self._nominal_lever_arm()
         return out[6:]
 
     def _shift_of(self, initial: Estimate | None) -> FloatArray | None:
@@ -709,13 +712,7 @@ class CalibrationEstimator:
                     st.values + self._prior_correction(st.covariance), self._theta_g,
                     self._theta_a, self._rho, self._mount)
         else:  # nothing good yet: back to the starting point
-            init = self._initial
-            q0 = np.zeros(self.fixture.n_joints)
-            self._theta_g = np.zeros(em.N_GYRO) if init is None else init.theta_gyro.copy()
-            self._theta_a = np.zeros(em.N_ACCEL) if init is None else init.theta_accel.copy()
-            self._rho = (self.fixture.R_enu_imu(q0).T @ self.fixture.p_enu_m(q0)
-                         if init is None else init.lever_arm_imu_m.copy())
-            self._mount = np.zeros(3) if init is None else init.mounting_rotvec_rad.copy()
+            self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
         self._errors = self._make_errors()
         if self._filter is not None:
             P = np.zeros((lay.n, lay.n))

@@ -731,14 +731,12 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     assumed = _grade_sigmas(grade)
     cur = _fields(initial.errors) if initial is not None else _fields(SensorErrors.zeros())
     start = {k: v.copy() for k, v in cur.items()}
-    # assumed sigma of each LS parameter (inf without a grade: nothing is demoted)
-    prior_sd = np.array([assumed[fld][idx] if assumed[fld][idx] > 0 else np.inf
+    # what is known before the data: the starting calibration's sigmas, else the grade's
+    known = _fields(initial.sigma) if initial is not None else assumed
+    # sigma of each LS parameter (inf when unknown: never demoted) and of the CONSIDER terms
+    prior_sd = np.array([known[fld][idx] if known[fld][idx] > 0 else np.inf
                          for _, fld, idx in PARAMS])
-    if initial is not None:
-        prior_sd = np.array([max(float(_fields(initial.sigma)[fld][idx]), 0.0) or np.inf
-                             for _, fld, idx in PARAMS])
-    sig_consider = np.array([(_fields(initial.sigma) if initial is not None else assumed)
-                             [fld][idx] for _, fld, idx, _ in CONSIDER])
+    sig_consider = np.array([known[fld][idx] for _, fld, idx, _ in CONSIDER])
     history = []
     for it in range(max(1, iterations)):
         errs = SensorErrors(**cur)
@@ -756,7 +754,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         # a parameter the rows determine worse than it is known beforehand (noise and
         # consider sigma) is not estimated: it stays at its assumed value. Before this, two
         # merged sequences gave a -1.6 % accelerometer scale "estimate" with a 3.9 % sigma.
-        J_f, _ = consider_sensitivities(geo, omega, f)
+        J_f, B_f = consider_sensitivities(geo, omega, f)
         allowed = np.ones(J.shape[1], bool)
         for _ in range(J.shape[1]):
             sd_total = np.sqrt(np.diag(sol.cov + _consider_part(sol, J, J_f, prior_sd,
@@ -780,25 +778,17 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
                         'gyro_bias_correction_rad_s': db.tolist(),
                         'chi2': sol.chi2, 'dof': sol.dof,
                         'rms_residual_m_s2': float(np.sqrt(np.mean(residual ** 2)))})
-    sig = {k: v.copy() for k, v in assumed.items()}
-    if initial is not None:
-        sig = _fields(initial.sigma)
+    sig = {k: v.copy() for k, v in known.items()}
     # consider covariance: what is held fixed but not zero in truth (G, qa, size effect,
     # and any parameter the sequence set does not excite) biases the estimate; its assumed
-    # sigma goes into the estimated parameters' sigma (P += S P_f S^T)
-    J_f, B_f = consider_sensitivities(geo, omega, f)
-    sig_f = np.array([sig[fld][idx] for _, fld, idx, _ in CONSIDER])
-    not_exc = ~sol.estimated
-    J_all = np.concatenate([J_f, J[:, not_exc]], axis=1)
-    sig_all = np.concatenate([sig_f, [sig[PARAMS[j][1]][PARAMS[j][2]]
-                                      for j in np.flatnonzero(not_exc)]])
-    P_c, S = consider_covariance(whiten(J), np.ones(y.size), sol.estimated, whiten(J_all),
-                                 sig_all)
+    # sigma goes into the estimated parameters' sigma (P += S P_f S^T). J_f, B_f: the last
+    # iteration's, on the same compensated stream
+    P_c = _consider_part(sol, J, J_f, prior_sd, sig_consider, whiten)
     sd = np.sqrt(np.diag(sol.cov + P_c))
     for fld, val in _errors_from_vector(sd).items():
         mask = _errors_from_vector(sol.estimated.astype(float))[fld] > 0
         sig[fld][mask] = val[mask]
-    sig['gyro_bias_rad_s'] = np.sqrt(sig_bg ** 2 + (B_f ** 2) @ sig_f ** 2)
+    sig['gyro_bias_rad_s'] = np.sqrt(sig_bg ** 2 + (B_f ** 2) @ sig_consider ** 2)
     fixed = ['gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect']
     not_est = [n for n, e in zip(PARAM_NAMES, sol.estimated) if not e]
     for fld, key in FIELD_KEYS.items():
@@ -834,6 +824,6 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
                      'sigma_noise_only': {PARAM_NAMES[j]: float(np.sqrt(sol.cov[j, j]))
                                           for j in np.flatnonzero(sol.estimated)},
                      'consider': {'parameters': [c[0] for c in CONSIDER],
-                                  'assumed_sigma': sig_f.tolist()},
+                                  'assumed_sigma': sig_consider.tolist()},
                      'gravity_m_s2': g}}
     return SensorErrors(**cur), SensorErrors(**sig), fixed, extra
