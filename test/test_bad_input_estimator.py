@@ -21,6 +21,10 @@ from imu_calib_ros.core.estimator.truth import calibration_truth
 from imu_calib_ros.core.simulator import SimConfig, simulate
 from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
 
+# The guard, gap and divergence mechanics on short records, about the grade's prior (the
+# coarse start from the data needs a minute of data; it is tested in test_coarse_start.py).
+MECH = EstimatorConfig(auto_start=False, noise_source='grade', max_restarts=0,
+                       cascade_updates=100000)
 FX = load_fixture('three_axis')
 GRADE = load_grade('nav_grade')
 
@@ -38,7 +42,7 @@ def z_scores(est: CalibrationEstimator, sim) -> np.ndarray:
 
 
 def run(sim, imu: ImuBatch, guard: GuardConfig | None = None) -> CalibrationEstimator:
-    est = CalibrationEstimator(FX, GRADE, EstimatorConfig())
+    est = CalibrationEstimator(FX, GRADE, MECH)
     if guard is not None:
         est.configure_guard(guard)
     est.push_joint_batch(sim.joints)
@@ -85,9 +89,9 @@ def test_rejected_input_never_touches_the_filter_state(sim) -> None:
     events += [(s.stamp_ns, 0, s) for s in js]
     events.sort(key=lambda e: (e[0], e[1]))
     guard = GuardConfig(frame_id='imu_link')
-    clean = CalibrationEstimator(FX, GRADE)
+    clean = CalibrationEstimator(FX, GRADE, MECH)
     clean.configure_guard(guard)
-    dirty = CalibrationEstimator(FX, GRADE)
+    dirty = CalibrationEstimator(FX, GRADE, MECH)
     dirty.configure_guard(guard)
     for _, kind, s in events:
         if kind == 0:
@@ -123,8 +127,8 @@ def test_batch_push_classifies_like_single_pushes(sim) -> None:
     t[400] = t[399]
     t[500] = t[498] - 1
     w[600] = [50.0, 0, 0]
-    a = CalibrationEstimator(FX, GRADE)
-    b = CalibrationEstimator(FX, GRADE)
+    a = CalibrationEstimator(FX, GRADE, MECH)
+    b = CalibrationEstimator(FX, GRADE, MECH)
     a.push_joint_batch(sim.joints)
     b.push_joint_batch(sim.joints)
     a.push_imu_batch(ImuBatch(t, w, f, 'imu_link'))
@@ -184,7 +188,7 @@ def test_long_gap_at_rest_is_bridged(sim) -> None:
 def test_reinitialise_keeps_the_calibration_covariance(sim) -> None:
     """Right after the re-alignment the calibration block of P is the one before the gap."""
     imu = without(sim.imu, 45.0, 47.0)
-    est = CalibrationEstimator(FX, GRADE)
+    est = CalibrationEstimator(FX, GRADE, MECH)
     est.push_joint_batch(sim.joints)
     t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
     k = int(np.searchsorted(t, 45.0))
@@ -217,7 +221,7 @@ def test_reset_navigation_after_a_backward_time_jump(sim) -> None:
     t_rel = (sim.imu.stamps_ns - sim.imu.stamps_ns[0]) * 1e-9
     k = int(np.searchsorted(t_rel, 120.0))
     t_j = sim.joints.stamps_ns
-    est = CalibrationEstimator(FX, GRADE)
+    est = CalibrationEstimator(FX, GRADE, MECH)
     j = int(np.searchsorted(t_j, sim.imu.stamps_ns[k]))
     est.push_joint_batch(JointBatch(t_j[:j], sim.joints.names, sim.joints.positions_rad[:j]))
     est.push_imu_batch(ImuBatch(sim.imu.stamps_ns[:k], sim.imu.gyro_rad_s[:k],
@@ -287,7 +291,7 @@ def test_divergence_from_a_gyro_fault_falls_back_to_last_good(sim) -> None:
 
 
 def _running_estimator(sim) -> CalibrationEstimator:
-    est = CalibrationEstimator(FX, GRADE)
+    est = CalibrationEstimator(FX, GRADE, MECH)
     est.push_joint_batch(sim.joints)
     est.push_imu_batch(ImuBatch(sim.imu.stamps_ns[:3000], sim.imu.gyro_rad_s[:3000],
                                 sim.imu.accel_m_s2[:3000]))
@@ -343,7 +347,7 @@ def test_accel_in_g_is_rejected_and_latched(sim) -> None:
 
 
 def test_status_stale_and_joint_names_warning(sim) -> None:
-    est = CalibrationEstimator(FX, GRADE)
+    est = CalibrationEstimator(FX, GRADE, MECH)
     assert est.health(now_ns=int(sim.imu.stamps_ns[0]))['status'] == 'STALE'
     est.push_joint(JointSample(int(sim.imu.stamps_ns[0]), ('a', 'b'), np.zeros(2)))
     h = est.health()
@@ -363,8 +367,8 @@ def test_joint_batch_push_equals_single_pushes(sim) -> None:
     q[50, 2] = np.nan
     t[60] = t[59]
     t[70] = t[65]
-    a = CalibrationEstimator(FX, GRADE)
-    b = CalibrationEstimator(FX, GRADE)
+    a = CalibrationEstimator(FX, GRADE, MECH)
+    b = CalibrationEstimator(FX, GRADE, MECH)
     for i in range(len(t)):
         a.push_joint(JointSample(int(t[i]), jb.names, q[i]))
     for k in range(0, len(t), 1000):

@@ -91,7 +91,8 @@ def test_second_pass_relinearises_without_counting_the_data_twice(nav_run) -> No
     by up to about one sigma toward pass 1's answer, and shrink nothing."""
     est1, sim = nav_run
     st1 = est1.estimate_state()
-    est2 = CalibrationEstimator(est1.fixture, est1.grade, est1.config, initial=st1)
+    est2 = CalibrationEstimator(est1.fixture, est1.grade, est1.config, initial=st1,
+                                 start=est1.start)
     est2.push_joint_batch(sim.joints)
     est2.push_imu_batch(sim.imu)
     est2.flush()
@@ -109,8 +110,9 @@ def test_rollback_after_divergence_reports_the_last_good_estimate_of_a_second_pa
     take the correction off a second time (it moved a state by 1 sigma before the fix)."""
     import dataclasses
     est1, sim = nav_run
-    est2 = CalibrationEstimator(est1.fixture, est1.grade, est1.config,
-                                initial=est1.estimate_state())
+    est2 = CalibrationEstimator(est1.fixture, est1.grade,
+                                dataclasses.replace(est1.config, max_restarts=0),
+                                initial=est1.estimate_state(), start=est1.start)
     est2.push_joint_batch(sim.joints)
     n = len(sim.imu) // 2
     est2.push_imu_batch(dataclasses.replace(sim.imu, stamps_ns=sim.imu.stamps_ns[:n],
@@ -127,8 +129,9 @@ def test_rollback_after_divergence_reports_the_last_good_estimate_of_a_second_pa
 def test_estimate_before_data_is_the_prior_mean_whatever_the_start(nav_run) -> None:
     est1, _ = nav_run
     st1 = est1.estimate_state()
-    fresh = CalibrationEstimator(est1.fixture, est1.grade, est1.config, initial=st1)
-    blank = CalibrationEstimator(est1.fixture, est1.grade, est1.config)
+    fresh = CalibrationEstimator(est1.fixture, est1.grade, est1.config, initial=st1,
+                                 start=est1.start)
+    blank = CalibrationEstimator(est1.fixture, est1.grade, est1.config, start=est1.start)
     a, b = fresh.estimate_state(), blank.estimate_state()
     np.testing.assert_allclose(a.values, b.values, rtol=0, atol=1e-15)
     np.testing.assert_allclose(a.theta_gyro, b.theta_gyro, rtol=0, atol=1e-15)
@@ -152,7 +155,9 @@ def test_single_sample_pushes_equal_batch_push() -> None:
     grade = load_grade('nav_grade')
     sim = simulate(fx, build_profile(load_plan('demo_short'), fx), grade,
                    SimConfig(imu_rate_hz=100.0, seed=3))
-    n = 2500  # 25 s: alignment plus the first rotation
+    # the whole plan: the coarse start is checked from 60 s on and taken once rotations and
+    # stationary windows pin it (or at the flush), then the held data runs through the filter
+    n = len(sim.imu)
     t_end = sim.imu.stamps_ns[n - 1]
     cfg = EstimatorConfig()
     a = CalibrationEstimator(fx, grade, cfg)
@@ -169,6 +174,8 @@ def test_single_sample_pushes_equal_batch_push() -> None:
     from imu_calib_ros.core.types import ImuBatch
     b.push_imu_batch(ImuBatch(sim.imu.stamps_ns[:n], sim.imu.gyro_rad_s[:n],
                               sim.imu.accel_m_s2[:n]))
+    a.flush()
+    b.flush()
     assert a.counters['imu_processed'] == b.counters['imu_processed'] > 1000
     sa, sb = a.estimate_state(), b.estimate_state()
     np.testing.assert_allclose(sa.values, sb.values, rtol=1e-9, atol=1e-15)

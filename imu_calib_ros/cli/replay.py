@@ -33,8 +33,11 @@ def register(subparsers: Any) -> None:
                    help='calibration file to write (CONTRACT 4)')
     p.add_argument('--imu-topic', default='/imu/data_raw', metavar='T')
     p.add_argument('--joint-topic', default='/joint_states', metavar='T')
-    p.add_argument('--imu', default='nav_grade', metavar='GRADE',
-                   help='IMU grade name or path: prior and noise (default nav_grade)')
+    p.add_argument('--imu', default=None, metavar='GRADE',
+                   help='optional IMU grade hint (name or path): its sigmas become prior '
+                        'floors; the noise, the start point and the priors come from the data '
+                        '(default: none, for a unit whose errors are not known; --method '
+                        'srt|oscillation take nav_grade\'s for what they do not solve for)')
     p.add_argument('--config', default=None, metavar='EST.yaml',
                    help='estimator config (default: config/estimator.yaml defaults)')
     p.add_argument('--iterations', type=int, default=1, metavar='N',
@@ -86,13 +89,16 @@ def run(args: Any) -> int:
         raise InputError(f'--iterations must be >= 1, got {args.iterations}')
     check_output_file(out, 'calib.yaml')
     fixture = load_fixture(args.fixture)
-    grade = load_grade(args.imu)
+    grade = load_grade(args.imu) if args.imu else None
     if not Path(args.bag).exists():
         raise InputError(f'bag {args.bag} does not exist')
     if args.method != 'ekf':
         from ..core.methods import oscillation, srt
         method = {'srt': srt.calibrate, 'oscillation': oscillation.calibrate}[args.method]
         imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
+        # the analytic methods take the parameters they do not solve for, and the consider
+        # covariance, from a grade: nav_grade unless --imu says otherwise
+        grade = grade or load_grade('nav_grade')
         try:
             calib = method(imu, joints, fixture, grade)
         except (RuntimeError, ValueError, ArithmeticError) as exc:

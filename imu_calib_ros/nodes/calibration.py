@@ -94,8 +94,9 @@ class CalibrationNodeConfig:
 
     fixture: str = field(default='three_axis', metadata={
         'doc': 'fixture file (CONTRACT 2) or shipped fixture name'})
-    imu_grade: str = field(default='nav_grade', metadata={
-        'doc': 'IMU grade (config/imus name or path): noise and prior sigmas'})
+    imu_grade: str = field(default='', metadata={
+        'doc': 'optional IMU grade hint (config/imus name or path): prior floors; empty = '
+               'none, everything measured from the data (issue 11)'})
     frame_id: str = field(default='', metadata={
         'doc': 'IMU frame to accept; empty = the first sample\'s frame'})
     imu_rate_hz: float = field(default=0.0, metadata={
@@ -169,13 +170,16 @@ class CalibrationNode(Node):
         from ..core.imu_grade import load_grade
         fixture_file = resolve_config_file(cfg.fixture, 'fixtures')
         self.fixture = Fixture.from_yaml(fixture_file)
-        self.grade = load_grade(cfg.imu_grade)
+        self.grade = load_grade(cfg.imu_grade) if cfg.imu_grade else None
         self.joint_names = tuple(self.fixture.joint_names)
         self.frame_id = cfg.frame_id
         prior = CalibrationEstimator(self.fixture, self.grade, cfg.estimator).estimate(
             frame_id=cfg.frame_id or 'imu_link')
         self.compensation = StreamCompensation(
-            prior, self.grade.gyro_noise_rad_s_rt_hz, self.grade.accel_noise_m_s2_rt_hz,
+            # without a grade hint the output covariances hold the calibration's uncertainty
+            # only, until a grade is given (the estimator's measured noise is not fed back)
+            prior, self.grade.gyro_noise_rad_s_rt_hz if self.grade else 0.0,
+            self.grade.accel_noise_m_s2_rt_hz if self.grade else 0.0,
             1.0 / cfg.imu_rate_hz if cfg.imu_rate_hz > 0 else 0.0)
         self._rate_known = False
         self.runner = EstimatorRunner(cfg.estimator_mode,
@@ -217,7 +221,8 @@ class CalibrationNode(Node):
                           on_clock_change=False), post_callback=self._on_time_jump)
         self.get_logger().info(
             f'calibrating on fixture {cfg.fixture} (joints {", ".join(self.joint_names)}), '
-            f'grade {self.grade.name}, estimator in a {cfg.estimator_mode}, output '
+            f'grade {self.grade.name if self.grade else "none (measured)"}, '
+            f'estimator in a {cfg.estimator_mode}, output '
             f'{cfg.output_file}')
 
     # ------------------------------------------------------------------ input callbacks

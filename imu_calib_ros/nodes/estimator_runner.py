@@ -79,7 +79,8 @@ def make_estimator(spec: tuple[str, str, Any]) -> Any:
     from ..core.fixture import Fixture
     from ..core.imu_grade import load_grade
     fixture_path, grade_name, config = spec
-    return CalibrationEstimator(Fixture.from_yaml(fixture_path), load_grade(grade_name), config)
+    grade = load_grade(grade_name) if grade_name else None
+    return CalibrationEstimator(Fixture.from_yaml(fixture_path), grade, config)
 
 
 def reset_navigation(estimator: Any) -> Any:

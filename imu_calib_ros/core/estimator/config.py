@@ -58,14 +58,36 @@ class EstimatorConfig:
     initial_tilt_sigma_rad: float = setting(2e-3, 'prior sigma of the levelled tilt', 1e-9)
     initial_heading_sigma_rad: float = setting(5e-3, 'prior sigma of the fixture heading', 1e-9)
     initial_velocity_sigma_m_s: float = setting(1e-3, 'prior sigma of the initial velocity', 1e-9)
-    lever_arm_sigma_m: float = setting(5e-3, 'prior sigma of the reference point offset', 1e-9)
-    mounting_sigma_rad: float = setting(3e-3, 'prior sigma of the mounting rotation', 1e-9)
+    lever_arm_sigma_m: float = setting(0.05, 'prior sigma of the reference point offset', 1e-9)
+    mounting_sigma_rad: float = setting(3e-3, 'least prior sigma of the mounting rotation', 1e-9)
     time_offset_sigma_s: float = setting(1e-3, 'prior sigma of the time offset', 1e-12)
     prior_sigma_scale: float = setting(1.0, 'multiplies the grade sigmas used as the prior', 1e-3)
     noise_source: Literal['grade', 'data'] = setting(
-        'grade', "process noise from the IMU grade file, or estimated from the stationary "
-        "window ('data', Allan deviation via allantools)")
+        'data', "process noise measured from the stationary windows ('data', Allan deviation "
+        "via allantools; needs auto_start), or taken from the IMU grade file ('grade')")
     noise_scale: float = setting(1.0, 'multiplies the white-noise densities used in Q', 0.01)
+    # --- the data choose the start (issue 11) -----------------------------------------------
+    auto_start: bool = setting(True, 'coarse start from the data before the filter: noise, '
+                               'joint latency, gyro and accel errors and the mounting, priors '
+                               'centred there (core/estimator/coarse.py)')
+    bootstrap_min_s: float = setting(60.0, 'least data gathered for the coarse start before the '
+                                     'filter starts (live: then as soon as it is determined)',
+                                     1.0)
+    bootstrap_max_s: float = setting(600.0, 'most data held for the coarse start', 10.0)
+    prior_inflation: float = setting(3.0, 'prior sigma = this x the coarse start sigma (never '
+                                     'below the grade hint)', 1.0)
+    imu_sample_type: Literal['mean', 'point'] = setting(
+        'mean', "IMU values are interval means stamped at the interval end (CONTRACT 1), or "
+        "instantaneous 'point' samples")
+    aiding_gyro_noise_rad_s_rt_hz: float = setting(
+        1e-5, 'encoder attitude aiding switches itself on when the measured gyro white noise is '
+        'above this (the gyros cannot hold attitude over a plan)', 0.0)
+    max_restarts: int = setting(3, 'a diverged filter restarts from the coarse start with '
+                                'inflated covariance this many times before giving up', 0, 100)
+    settle_s: float = setting(30.0, 'after each alignment, feedback after every update for this '
+                              'long (the uncertainty is large)', 0.0)
+    cascade_updates: int = setting(10, 'this many gated updates in a row re-align the navigation '
+                                   '(calibration states and covariance kept)', 2, 100000)
     max_pending_s: float = setting(2.0, 'longest wait for joint states before updating without '
                               'attitude aiding', 0.01)
 

@@ -41,10 +41,12 @@ from ..rotation import skew
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
+from .coarse import CoarseStart, NoRotation, coarse_start
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter, chunk_transition_rows, process_noise
 
 FloatArray = NDArray[np.float64]
+_LOG = logging.getLogger('imu_calib_ros.estimator')
 MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the filter
 
 # CONTRACT 4 keys and the state groups that make them up
@@ -61,25 +63,69 @@ CONTRACT_KEYS: dict[str, tuple[str, ...]] = {
 }
 
 
-def prior_sigmas(grade: Any, config: EstimatorConfig) -> dict[str, FloatArray]:
-    """One-sigma prior of every group in SI (grade sigmas x ``prior_sigma_scale``)."""
-    s = grade.sigma
+# Wide priors of an uncalibrated unit (SI), for what the coarse start does not measure:
+# the largest raw errors the product is specified for (issue 11: MEMS scale 3 %, misalignment
+# 30 mrad, gyro bias 1 deg/s, accel bias 100 mg, size effect 2 cm).
+RAW_PRIOR: dict[str, float] = {
+    'gyro_bias': 1.75e-2, 'gyro_scale': 3e-2, 'gyro_asymmetry': 3e-3,
+    'gyro_misalignment': 3e-2, 'gyro_g_sensitivity': 1.8e-5, 'accel_bias': 1.0,
+    'accel_scale': 3e-2, 'accel_asymmetry': 3e-3, 'accel_misalignment': 3e-2,
+    'accel_quadratic': 1e-4, 'size_effect': 2e-2}
+# Least prior around a coarse value, for the model errors of the coarse fit (accelerometer
+# asymmetry and quadratic terms are not in it; they shift bias and scale by up to ~aa g).
+COARSE_FLOOR: dict[str, float] = {
+    'gyro_bias': 4.8e-9, 'gyro_scale': 1e-5, 'gyro_asymmetry': 1e-5,
+    'gyro_misalignment': 1e-5, 'gyro_g_sensitivity': 1e-8, 'accel_bias': 1e-2,
+    'accel_scale': 2e-3, 'accel_misalignment': 1e-3, 'accel_asymmetry': 3e-3,
+    'accel_quadratic': 1e-4, 'size_effect': 2e-2}
+
+
+def prior_sigmas(grade: Any, config: EstimatorConfig,
+                 start: CoarseStart | None = None) -> dict[str, FloatArray]:
+    """One-sigma prior of every group in SI.
+
+    Without a coarse start: the grade's sigmas x ``prior_sigma_scale`` (the old behaviour,
+    ``auto_start: false``). With one (issue 11): ``prior_inflation`` x the coarse sigma, never
+    below :data:`COARSE_FLOOR` nor the grade hint; groups the data did not determine get
+    :data:`RAW_PRIOR` (never below the grade hint either).
+    """
     k = config.prior_sigma_scale
-    out = {
-        'gyro_bias': s.gyro_bias_rad_s, 'gyro_scale': s.gyro_scale,
-        'gyro_asymmetry': s.gyro_asymmetry, 'gyro_misalignment': s.gyro_misalignment_rad,
-        'gyro_g_sensitivity': s.gyro_g_sensitivity, 'accel_bias': s.accel_bias_m_s2,
-        'accel_scale': s.accel_scale, 'accel_asymmetry': s.accel_asymmetry,
-        'accel_misalignment': s.accel_misalignment_rad, 'accel_quadratic': s.accel_quadratic,
-        'size_effect': s.size_effect_m,
-    }
-    res = {name: np.full(em.GROUP_INFO[name][1], k * float(v)) for name, v in out.items()}
-    # the filter estimates the total bias = turn-on constant + Gauss-Markov part (steady state)
-    res['gyro_bias'] = np.hypot(res['gyro_bias'], grade.gyro_bias_instability_rad_s)
-    res['accel_bias'] = np.hypot(res['accel_bias'], grade.accel_bias_instability_m_s2)
+    hint: dict[str, FloatArray] = {}
+    if grade is not None:
+        s = grade.sigma
+        vals = {
+            'gyro_bias': s.gyro_bias_rad_s, 'gyro_scale': s.gyro_scale,
+            'gyro_asymmetry': s.gyro_asymmetry, 'gyro_misalignment': s.gyro_misalignment_rad,
+            'gyro_g_sensitivity': s.gyro_g_sensitivity, 'accel_bias': s.accel_bias_m_s2,
+            'accel_scale': s.accel_scale, 'accel_asymmetry': s.accel_asymmetry,
+            'accel_misalignment': s.accel_misalignment_rad,
+            'accel_quadratic': s.accel_quadratic, 'size_effect': s.size_effect_m}
+        hint = {n: np.full(em.GROUP_INFO[n][1], k * float(v)) for n, v in vals.items()}
+        # the filter estimates the total bias = turn-on constant + Gauss-Markov part
+        hint['gyro_bias'] = np.hypot(hint['gyro_bias'], grade.gyro_bias_instability_rad_s)
+        hint['accel_bias'] = np.hypot(hint['accel_bias'], grade.accel_bias_instability_m_s2)
+    if start is None:
+        res = dict(hint) if hint else {n: np.full(em.GROUP_INFO[n][1], v)
+                                       for n, v in RAW_PRIOR.items()}
+    else:
+        res = {}
+        for name, raw in RAW_PRIOR.items():
+            side = em.GROUP_INFO[name][4]
+            cols = em.gyro_cols(name) if side == 'g' else em.accel_cols(name)
+            sig = (start.sigma_gyro if side == 'g' else start.sigma_accel)[cols]
+            p = np.where(np.isfinite(sig),
+                         np.maximum(config.prior_inflation * np.nan_to_num(sig, posinf=0.0),
+                                    COARSE_FLOOR[name]), raw)
+            if name in hint:
+                # a grade that says "none" (sigma 0: optical gyros have no G) drops the group
+                p = np.where(hint[name] > 0, np.maximum(p, hint[name]), 0.0)
+            res[name] = p
     res['time_offset'] = np.full(1, config.time_offset_sigma_s)
     res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
-    res['mounting'] = np.full(3, config.mounting_sigma_rad)
+    mount = config.mounting_sigma_rad
+    if start is not None:
+        mount = max(mount, config.prior_inflation * start.mounting_sigma_rad)
+    res['mounting'] = np.full(3, mount)
     return res
 
 
@@ -113,26 +159,46 @@ class CalibrationEstimator:
         grade's, centred where pass 1 started (see :meth:`estimate_state`).
     """
 
-    def __init__(self, fixture: Any, grade: Any, config: EstimatorConfig | None = None,
-                 initial: Estimate | None = None) -> None:
+    def __init__(self, fixture: Any, grade: Any = None, config: EstimatorConfig | None = None,
+                 initial: Estimate | None = None, start: CoarseStart | None = None) -> None:
         self.fixture = fixture
-        self.grade = grade
+        self.grade = grade  # a hint (prior floors, noise with noise_source 'grade'), or None
         self.config = config or EstimatorConfig()
         self._initial = initial
-        self._prior = prior_sigmas(grade, self.config)
-        groups = self.config.estimated_groups
+        self._given_start = start
+        self._joint_names = tuple(fixture.joint_names)
+        self.reset()
+
+    def _configure(self) -> None:
+        """Priors, encoder aiding and the state layout from the config, grade and start."""
+        cfg = self.config
+        st = self.start
+        aiding = cfg.attitude_aiding or (
+            st is not None and cfg.aiding_gyro_noise_rad_s_rt_hz > 0
+            and st.gyro_noise_rad_s_rt_hz > cfg.aiding_gyro_noise_rad_s_rt_hz)
+        self.attitude_aiding = bool(aiding)
+        self._prior = prior_sigmas(self.grade, cfg, st)
+        groups = cfg.estimated_groups
+        if self.attitude_aiding and 'mounting' not in groups:
+            groups = groups + ('mounting',)
         self.dropped_groups = tuple(g for g in groups if not np.all(self._prior[g] > 0.0))
         self.layout = em.StateLayout.build(
             tuple(g for g in groups if g not in self.dropped_groups))
-        self._joint_names = tuple(fixture.joint_names)
-        self._prior_shift = self._shift_of(initial)
-        self.reset()
+        self._prior_shift = self._shift_of(self._initial)
 
     # ------------------------------------------------------------------ public API
     def reset(self) -> None:
-        """Forget all data; back to waiting for a stationary window."""
-        self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
-        self._errors = self._make_errors()
+        """Forget all data; back to waiting for a stationary window (and, without a given
+        start, to holding the first data for the coarse start)."""
+        self.start = self._given_start
+        # issue 11: without a start, hold the first data until the coarse start is determined
+        self._bootstrapping = self.config.auto_start and self.start is None
+        self._boot: list[tuple[Any, ...]] = []
+        self._boot_span = (0, 0)  # first and newest IMU stamp held
+        self._boot_next_check_s = 0.0
+        self.restarts = 0
+        self._configure()
+        self._reset_filter_side()
         self.frame_id = ''  # header.frame_id of the first accepted IMU data
         self._running = False
         self._nav: Strapdown | None = None
@@ -149,7 +215,6 @@ class CalibrationEstimator:
         self._last_imu_stamp: int | None = None
         self._nominal_dt = 0.0
         self._n = 1
-        self._noise = (self.grade.gyro_noise_rad_s_rt_hz, self.grade.accel_noise_m_s2_rt_hz)
         self._q1_s: FloatArray | None = None
         self.counters: dict[str, int] = {
             'imu_samples': 0, 'joint_samples': 0, 'imu_processed': 0, 'chunks': 0,
@@ -157,7 +222,7 @@ class CalibrationEstimator:
             'joint_out_of_order': 0, 'joint_missing_names': 0, 'joint_non_finite': 0, 'gaps': 0,
             'attitude_updates_without_joints': 0,
             'imu_dropped_at_gap': 0, 'gaps_bridged': 0, 'gaps_reinitialised': 0,
-            'divergences': 0}
+            'divergences': 0, 'restarts': self.restarts, 'realignments': 0}
         self._t0_ns: int | None = None
         self._t_last_ns: int | None = None
         # bad input and faults (issue 6, core/input_guard.py)
@@ -172,6 +237,18 @@ class CalibrationEstimator:
         self._last_good_cache: tuple[int, Any] | None = None
         self._nis_hist: deque[tuple[int, int, float]] = deque()
         self._kept_cal_P: FloatArray | None = None
+
+    def _reset_filter_side(self) -> None:
+        """Start point, compensation, noise, joint latency: what the coarse start sets."""
+        self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
+        self._errors = self._make_errors()
+        self._noise = self._noise_densities()
+        self._point_prev: tuple[int, FloatArray, FloatArray] | None = None
+        self._latency_ns = 0 if self.start is None else int(round(
+            self.start.joint_latency_s * 1e9))
+        self._settle_until_ns: int | None = None
+        self._gated_run = 0
+        self._cascade = False
 
     def reset_navigation(self) -> None:
         """Restart the navigation after a backward time jump (a looping bag, ``use_sim_time``).
@@ -202,10 +279,10 @@ class CalibrationEstimator:
         Bad samples are rejected by the :class:`~imu_calib_ros.core.input_guard.InputGuard`
         (counted by reason in ``health()['rejected']``) and never reach the filter.
         """
-        self._push_imu_arrays(np.array([sample.stamp_ns], np.int64),
-                              np.asarray(sample.gyro_rad_s, float).reshape(1, 3),
-                              np.asarray(sample.accel_m_s2, float).reshape(1, 3),
-                              sample.frame_id)
+        self.push_imu_batch(ImuBatch(np.array([sample.stamp_ns], np.int64),
+                                     np.asarray(sample.gyro_rad_s, float).reshape(1, 3),
+                                     np.asarray(sample.accel_m_s2, float).reshape(1, 3),
+                                     sample.frame_id))
 
     def push_imu_batch(self, batch: ImuBatch) -> None:
         """Add many IMU samples (same code path as :meth:`push_imu`, vectorised)."""
@@ -219,8 +296,10 @@ class CalibrationEstimator:
         """Add one joint-state sample (names in any order; other joints ignored)."""
         q = self._guard.check_joint(int(sample.stamp_ns), tuple(sample.names),
                                     sample.positions_rad)
-        if q is not None:
-            self._append_joint_q(int(sample.stamp_ns), q)
+        if q is not None and self._bootstrapping:
+            self._hold(('joints', np.array([sample.stamp_ns], np.int64), q[None, :]))
+        elif q is not None:  # joint stamps minus the measured latency: the instants they describe
+            self._append_joint_q(int(sample.stamp_ns) - self._latency_ns, q)
         self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
@@ -228,15 +307,121 @@ class CalibrationEstimator:
         :meth:`push_joint` one by one, vectorised (input guard ``check_joint_batch``)."""
         t, q = self._guard.check_joint_batch(batch.stamps_ns, tuple(batch.names),
                                              batch.positions_rad)
-        if len(t):
-            self._append_joint_batch(t, q)
+        if len(t) and self._bootstrapping:
+            self._hold(('joints', t, q))
+        elif len(t):
+            self._append_joint_batch(t - self._latency_ns, q)
         self._sync_input_counters()
 
     def flush(self) -> None:
         """Process every complete chunk (end of a bag), ignoring the joint look-ahead, and
         check the filter's health over that last stretch too."""
+        if self._bootstrapping:
+            self._finish_bootstrap(final=True)
         self._process(final=True)
         self._check_divergence()
+
+    # ------------------------------------------------------------------ coarse start (issue 11)
+    def _hold(self, item: tuple[Any, ...]) -> None:
+        """Hold input the guard kept until the coarse start is determined (then replayed in
+        push order: the filter sees exactly what it would have seen with the start known)."""
+        self._boot.append(item)
+        if item[0] != 'imu':
+            return
+        t0 = self._boot_span[0] or int(item[1][0])
+        self._boot_span = (t0, max(self._boot_span[1], int(item[1][-1])))
+        span = (self._boot_span[1] - t0) * 1e-9
+        cfg = self.config
+        # checked at fixed data times (bootstrap_min_s, then every 20 s or 25 %) on the data up to
+        # then: the same start whatever the push pattern (single samples, batches)
+        while self._bootstrapping and span >= max(cfg.bootstrap_min_s,
+                                                  self._boot_next_check_s):
+            at = max(cfg.bootstrap_min_s, self._boot_next_check_s)
+            self._boot_next_check_s = max(at + 20.0, 1.25 * at)  # ~12 checks up to 600 s
+            self._finish_bootstrap(final=at >= cfg.bootstrap_max_s,
+                                   t_cut_ns=t0 + int(at * 1e9))
+
+    def _held_arrays(self, t_cut_ns: int | None = None) -> tuple[Any, ...] | None:
+        """The held input as clean arrays for :func:`coarse_start` (finite, stamp order,
+        fixture joints unwrapped, point samples as interval means), or None if too little."""
+        imu = [b for b in self._boot if b[0] == 'imu']
+        jb = [b for b in self._boot if b[0] == 'joints']
+        if not imu or not jb:
+            return None
+        t = np.concatenate([b[1] for b in imu])
+        w = np.concatenate([b[2] for b in imu])
+        f = np.concatenate([b[3] for b in imu])
+        if t_cut_ns is not None:
+            k = int(np.searchsorted(t, t_cut_ns, side='right'))
+            t, w, f = t[:k], w[:k], f[:k]
+        if self.config.imu_sample_type == 'point':
+            w, f = _point_to_mean(w, f, None)
+        tj = np.concatenate([b[1] for b in jb])
+        qj = np.concatenate([b[2] for b in jb])
+        if t_cut_ns is not None:
+            k = int(np.searchsorted(tj, t_cut_ns, side='right'))
+            tj, qj = tj[:k], qj[:k]
+        k = np.arange(len(tj))
+        qj = np.unwrap(qj[k], axis=0)
+        if len(t) < 100 or len(tj) < 4:
+            return None
+        return t, w, f, tj, qj
+
+    def _finish_bootstrap(self, final: bool, t_cut_ns: int | None = None) -> None:
+        """Measure the coarse start from the held data (up to ``t_cut_ns``); when it is
+        determined (or at the end of the data), configure the filter around it and replay the
+        held input."""
+        arrays = self._held_arrays(t_cut_ns)
+        st = None
+        if arrays is not None:
+            try:
+                st = coarse_start(*arrays, self.fixture,
+                                  tol_rad=self.config.stationary_joint_tolerance_rad)
+            except NoRotation:
+                pass  # at the end: no start; the caller's "no motion" check names it
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                if final:  # the data contradict the fixture: say which, never guess
+                    raise InputError(str(exc)) from None
+        if st is None and not final:
+            return
+        if st is not None and not final and not st.determined():
+            return  # not yet determined: gather more
+        held, self._boot = self._boot, []
+        self._bootstrapping = False
+        self.start = st
+        self._configure()
+        self._reset_filter_side()
+        if st is not None:
+            _LOG.info('coarse start: %s', st.summary())
+            self._check_grade_hint(st)
+        for item in held:
+            if item[0] == 'imu':
+                self._accept_imu(*item[1:])
+            elif len(item[1]):
+                self._append_joint_batch(item[1] - self._latency_ns, item[2])
+
+    def _check_grade_hint(self, st: CoarseStart) -> None:
+        """One line when the data disagree with the grade the user gave (noise densities)."""
+        gr = self.grade
+        if gr is None:
+            return
+        for what, got, hint in (('gyro', st.gyro_noise_rad_s_rt_hz, gr.gyro_noise_rad_s_rt_hz),
+                                ('accelerometer', st.accel_noise_m_s2_rt_hz,
+                                 gr.accel_noise_m_s2_rt_hz)):
+            if hint > 0 and not 0.5 <= got / hint <= 2.0:
+                _LOG.warning('the data disagree with the IMU grade %s: %s white noise %.3g is '
+                             '%.2g x the grade\'s %.3g (using %s)', gr.name, what, got,
+                             got / hint, hint, 'the data\'s' if self.config.noise_source ==
+                             'data' else 'the grade\'s')
+
+    def _noise_densities(self) -> tuple[float, float]:
+        """White-noise densities for Q: measured (coarse start) or the grade's."""
+        st, gr = self.start, self.grade
+        if st is not None and (self.config.noise_source == 'data' or gr is None):
+            return st.gyro_noise_rad_s_rt_hz, st.accel_noise_m_s2_rt_hz
+        if gr is not None:
+            return gr.gyro_noise_rad_s_rt_hz, gr.accel_noise_m_s2_rt_hz
+        return 1e-4, 1e-3  # nothing measured yet and no grade: MEMS-like until the start
 
     def filter_accepted(self, kind: str) -> int:
         """Accepted updates of one kind (``'velocity'`` or ``'attitude'``)."""
@@ -257,19 +442,24 @@ class CalibrationEstimator:
         starting estimate's, else the prior mean (fresh arrays)."""
         init = self._initial
         if init is None:
-            return (np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), self._nominal_lever_arm(),
-                    np.zeros(3))
+            return self._coarse_point()
         return (init.theta_gyro.copy(), init.theta_accel.copy(), init.lever_arm_imu_m.copy(),
                 init.mounting_rotvec_rad.copy())
 
+    def _coarse_point(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The prior mean: the coarse start (issue 11), else no sensor errors; the nominal
+        lever arm in the (mounted) IMU frame; the measured mounting rotation, else none."""
+        st = self.start
+        if st is None:
+            return (np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), self._nominal_lever_arm(),
+                    np.zeros(3))
+        R_m = Rotation.from_rotvec(st.mounting_rotvec_rad).as_matrix()
+        return (st.theta_gyro.copy(), st.theta_accel.copy(), R_m.T @ self._nominal_lever_arm(),
+                st.mounting_rotvec_rad.copy())
+
     def _prior_mean(self) -> FloatArray:
-        """Where pass 1 starts, as calibration-state values: no sensor errors, the nominal
-        fixture's lever arm, no mounting rotation."""
-        lay = self.layout
-        out = np.zeros(lay.n)
-        if 'lever_arm' in lay.slices:
-            out[lay.slices['lever_arm']] = self._nominal_lever_arm()
-        return out[6:]
+        """Where pass 1 starts (:meth:`_coarse_point`), as calibration-state values."""
+        return self._values_of(*self._coarse_point())
 
     def _shift_of(self, initial: Estimate | None) -> FloatArray | None:
         """``initial.values`` minus the prior mean (None without a starting estimate)."""
@@ -512,12 +702,24 @@ class CalibrationEstimator:
         if not keep.any():
             return
         t, w, f = t[keep], w[keep], f[keep]
+        if self._bootstrapping:
+            self._hold(('imu', t, w, f, verdict.gaps, verdict.long_gaps))
+            return
+        self._accept_imu(t, w, f, verdict.gaps, verdict.long_gaps)
+
+    def _accept_imu(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray, gap_idx: Any,
+                    long_gap_idx: Any) -> None:
+        """Samples the guard kept: to interval means, split at gaps, processed by blocks."""
+        if self.config.imu_sample_type == 'point':  # CONTRACT 1: point samples as means
+            raw_last = (int(t[-1]), w[-1].copy(), f[-1].copy())
+            w, f = _point_to_mean(w, f, self._point_prev)
+            self._point_prev = raw_last
         # A long gap applies gap_policy; a short gap (> gap_periods nominal periods) during
         # which the table turned also loses the turn (CONTRACT 1), which no navigator can
         # bridge: it re-initialises the navigation too (calibration states are kept).
-        gaps = {int(i) for i in verdict.long_gaps}
-        gaps.update(int(i) for i in verdict.gaps)
-        long_gaps = {int(i) for i in verdict.long_gaps}
+        gaps = {int(i) for i in long_gap_idx}
+        gaps.update(int(i) for i in gap_idx)
+        long_gaps = {int(i) for i in long_gap_idx}
         bounds = sorted({0, *gaps, len(t)})
         for a, b in zip(bounds[:-1], bounds[1:]):
             if a in gaps and self._last_imu_stamp is not None:
@@ -658,11 +860,12 @@ class CalibrationEstimator:
         if reason is None:
             prior = np.concatenate([self._prior[g] for g in lay.groups]) if lay.groups \
                 else np.zeros(0)
-            over = np.abs(vals) > cfg.state_range_sigmas * prior
+            dev = np.abs(vals - self._prior_mean())  # from the prior mean (coarse start)
+            over = dev > cfg.state_range_sigmas * prior
             if over.any():
-                i = int(np.argmax(np.abs(vals) / np.where(prior > 0, prior, np.inf)))
+                i = int(np.argmax(dev / np.where(prior > 0, prior, np.inf)))
                 reason = (f'state {lay.labels()[6 + i]} = {vals[i]:.3g} beyond '
-                          f'{cfg.state_range_sigmas:g} prior sigmas')
+                          f'{cfg.state_range_sigmas:g} prior sigmas from its prior mean')
         if reason is None:
             reason = self._nis_window_reason()
         if reason is not None:
@@ -695,8 +898,31 @@ class CalibrationEstimator:
                 return f'mean NIS per dof {mean:.3g} over the last {acc} updates'
         return None
 
+    def _restart(self, reason: str) -> None:
+        """A diverged filter restarts from the coarse start with its prior covariance
+        inflated (x2 per restart) and re-aligns at the next stationary window (issue 11)."""
+        self.restarts += 1
+        self.counters['restarts'] = self.restarts
+        _LOG.warning('calibration filter diverged (%s): restart %d of %d from the start point '
+                     'with inflated covariance', reason, self.restarts, self.config.max_restarts)
+        self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
+        self._errors = self._make_errors()
+        self._drop_navigation()
+        lay = self.layout
+        infl = 2.0 ** self.restarts
+        self._kept_cal_P = np.diag((np.concatenate(
+            [self._prior[g] for g in lay.groups]) * infl / lay.scale[6:]) ** 2) \
+            if lay.groups else np.zeros((0, 0))
+        self._good.clear()
+        self._gated_run = 0
+        self._cascade = False
+
     def _declare_divergence(self, reason: str) -> None:
-        """Latch ERROR; roll the estimate back to the last good snapshot; stop the filter."""
+        """Restart (up to ``max_restarts``); then latch ERROR, roll the estimate back to the
+        last good snapshot and stop the filter."""
+        if self.restarts < self.config.max_restarts:
+            self._restart(reason)
+            return
         self._diverged = reason
         self.counters['divergences'] += 1
         st = self._good[0] if self._good else None
@@ -843,7 +1069,7 @@ class CalibrationEstimator:
         q_mean = jq[start_j:j1].mean(axis=0)  # the window only: same for any push pattern
         w_c, f_c = sm.compensate(self._errors, ww, fw, np.zeros_like(ww))
         f_mean = f_c.mean(axis=0)
-        R_fix = self.fixture.R_enu_imu(q_mean)
+        R_fix = self.fixture.R_enu_imu(q_mean) @ Rotation.from_rotvec(self._mount).as_matrix()
         up = R_fix @ f_mean
         up /= np.linalg.norm(up)
         axis = np.cross(up, [0.0, 0.0, 1.0])
@@ -851,8 +1077,9 @@ class CalibrationEstimator:
         ang = math.atan2(s, up[2])
         R_lev = Rotation.from_rotvec(axis / s * ang).as_matrix() if s > 0 else np.eye(3)
         R0 = R_lev @ R_fix
-        if cfg.noise_source == 'data':
+        if cfg.noise_source == 'data' and self.start is None:
             self._noise = self._noise_from_data(w_c, f_c)
+        self._settle_until_ns = int(t[0]) + int(cfg.settle_s * 1e9)
         self._nav = Strapdown(self.fixture.site, R0)
         self._start_filter()
         self._running = True
@@ -880,17 +1107,22 @@ class CalibrationEstimator:
         lay = self.layout
         p0 = np.zeros(lay.n)
         p0[0:2] = cfg.initial_tilt_sigma_rad
-        p0[2] = cfg.initial_heading_sigma_rad
+        p0[2] = max(cfg.initial_heading_sigma_rad, float(self._prior['mounting'][2]))
         p0[3:6] = cfg.initial_velocity_sigma_m_s
         for g in lay.groups:
             p0[lay.slices[g]] = self._prior[g]
         P0 = np.diag((p0 / lay.scale) ** 2)
         self._filter = ErrorStateFilter(lay, P0, cfg.gate_probability)
         gr = self.grade
-        qg = (2.0 * gr.gyro_bias_instability_rad_s ** 2 / gr.gyro_bias_correlation_s
-              + gr.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
-        qa = (2.0 * gr.accel_bias_instability_m_s2 ** 2 / gr.accel_bias_correlation_s
-              + gr.accel_bias_random_walk_m_s3_rt_hz ** 2)
+        qg = qa = 0.0
+        if gr is not None:
+            qg = (2.0 * gr.gyro_bias_instability_rad_s ** 2 / gr.gyro_bias_correlation_s
+                  + gr.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
+            qa = (2.0 * gr.accel_bias_instability_m_s2 ** 2 / gr.accel_bias_correlation_s
+                  + gr.accel_bias_random_walk_m_s3_rt_hz ** 2)
+        if self.start is not None:  # item 5: the random walk the data show, if larger
+            qg = max(qg, self.start.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
+            qa = max(qa, self.start.accel_bias_random_walk_m_s3_rt_hz ** 2)
         k = cfg.noise_scale
         q1 = process_noise(lay, 1.0, k * self._noise[0], k * self._noise[1], qg, qa)
         self._q1_s = np.diag(np.diag(q1) / lay.scale ** 2)
@@ -906,7 +1138,7 @@ class CalibrationEstimator:
         if len(t) < need:
             return
         n_chunks = (len(t) - 1) // n
-        aiding = self.config.attitude_aiding
+        aiding = self.attitude_aiding
         if aiding and not final and self._jt:
             # wait for joint states beyond a chunk end (unless they stopped coming)
             t_j = self._jt[-1]
@@ -914,19 +1146,37 @@ class CalibrationEstimator:
             if t[-1] - t_j < wait_ns:
                 ends = t[n - 1:n * n_chunks:n]
                 n_chunks = int(np.searchsorted(ends, t_j, side='right'))
-        bc = self.config.block_chunks
-        if not final:  # whole blocks only: single pushes and batches give the same result
-            n_chunks = (n_chunks // bc) * bc
         done = 0
-        while done < n_chunks:
-            b = min(bc, n_chunks - done)
+        while done < n_chunks and self._running:
             k0 = done * n
+            # feedback after every update while settling (large uncertainty, issue 11), then
+            # blocks of block_chunks; whole blocks only, so that pushes and batches agree
+            settle = self._settle_until_ns
+            bc = 1 if settle is not None and t[k0] < settle else self.config.block_chunks
+            b = min(bc, n_chunks - done) if final else bc
+            if done + b > n_chunks:
+                break
             k1 = k0 + b * n
             self._run_block(t[k0:k1 + 1], w[k0:k1 + 1], f[k0:k1 + 1], b)
             done += b
+            if self._cascade:
+                self._realign()
+                break
         if done:
             self._keep_imu_from(done * n)
             self._trim_joints()
+
+    def _realign(self) -> None:
+        """A run of gated updates means the navigation left the linear region, not that every
+        measurement is wrong (METHODS.md section 4): drop the navigation states, keep the
+        calibration states and their covariance, re-align at the next stationary window."""
+        self._cascade = False
+        self._gated_run = 0
+        self.counters['realignments'] += 1
+        _LOG.warning('%d measurement updates in a row failed the gate: navigation re-aligned '
+                     'at the next stationary window (calibration kept)',
+                     self.config.cascade_updates)
+        self._drop_navigation()
 
     def _trim_joints(self) -> None:
         if self._t_last_ns is None or len(self._jt) < 3:
@@ -957,6 +1207,9 @@ class CalibrationEstimator:
         ff = np.vstack([f_prev, f])
         # central differences of mean rates: omega_dot at the interval (Kozlov eq. 1 term)
         den = (dt_all[:-1] + dt_all[1:])[:, None]
+        # of the compensated rates: with raw ones, a raw unit's 0.5 % scale error made the
+        # size effect 1 % (6 sigma) wrong (issue 11); the gyro part needs no omega_dot
+        ww = sm.compensate(self._errors, ww, ff, np.zeros_like(ww))[0]
         wd = (ww[2:] - ww[:-2]) / den  # (m, 3)
         fd = (ff[2:] - ff[:-2]) / den
         wd_all = np.vstack([wd, wd[-1:]])  # look-ahead: reuse
@@ -999,21 +1252,20 @@ class CalibrationEstimator:
         # attitude from the encoders (with the mounting rotation)
         z_a = H_a = None
         have_att = np.zeros(B, bool)
-        if self.config.attitude_aiding and self._jt:
+        if self.attitude_aiding and self._jt:
             te = t[ends]
             have_att = (te >= self._jt[0]) & (te <= self._jt[-1])
             self.counters['attitude_updates_without_joints'] += int((~have_att).sum())
             if have_att.any():
                 # only the joint samples around this block: the buffer may hold a whole run
                 te_in = te[have_att]
-                j0 = max(bisect.bisect_right(self._jt, int(te_in[0])) - 1, 0)
-                j1 = bisect.bisect_left(self._jt, int(te_in[-1])) + 1
+                j0 = max(bisect.bisect_right(self._jt, int(te_in[0])) - 3, 0)
+                j1 = bisect.bisect_left(self._jt, int(te_in[-1])) + 3
                 jt = np.array(self._jt[j0:j1], np.int64)
                 jq = np.array(self._jq[j0:j1])
-                rel = (te - jt[0]).astype(float)
-                jrel = (jt - jt[0]).astype(float)
-                q_end = np.stack([np.interp(rel, jrel, jq[:, i]) for i in range(jq.shape[1])],
-                                 axis=1)
+                rel = (te - jt[0]).astype(float) * 1e-9
+                jrel = (jt - jt[0]).astype(float) * 1e-9
+                q_end = _interp_joints(rel, jrel, jq)
                 R_pred = self.fixture.R_enu_imu(q_end) @ Rotation.from_rotvec(
                     self._mount).as_matrix()
                 z_a = Rotation.from_matrix(R_end @ np.swapaxes(R_pred, 1, 2)).as_rotvec()
@@ -1028,7 +1280,11 @@ class CalibrationEstimator:
         q1_diag_s = np.diag(self._q1_s)
         for b in range(B):
             filt.predict_rows(rows_s[b], q1_diag_s * T[b])
-            filt.update('velocity', z_v[b], H_v[b], R_v)
+            if filt.update('velocity', z_v[b], H_v[b], R_v):
+                self._gated_run = 0
+            else:
+                self._gated_run += 1
+                self._cascade = self._gated_run >= self.config.cascade_updates
             if have_att[b]:
                 filt.update('attitude', z_a[b], H_a[b], R_a)  # type: ignore[index]
         if n_gaps:  # motion during a gap is lost: widen the navigation uncertainty
@@ -1060,14 +1316,19 @@ class CalibrationEstimator:
         return em.errors_from_theta(self._theta_g, self._theta_a, sm.SensorErrors)
 
     def _state_values(self) -> FloatArray:
+        return self._values_of(self._theta_g, self._theta_a, self._rho, self._mount)
+
+    def _values_of(self, tg: FloatArray, ta: FloatArray, rho: FloatArray,
+                   mount: FloatArray) -> FloatArray:
+        """Calibration-state values (no psi, dv) of parameter arrays."""
         lay = self.layout
         out = np.zeros(lay.n)
-        out[lay.gyro_state_idx] = self._theta_g[lay.gyro_cols]
-        out[lay.accel_state_idx] = self._theta_a[lay.accel_cols]
+        out[lay.gyro_state_idx] = tg[lay.gyro_cols]
+        out[lay.accel_state_idx] = ta[lay.accel_cols]
         if 'lever_arm' in lay.slices:
-            out[lay.slices['lever_arm']] = self._rho
+            out[lay.slices['lever_arm']] = rho
         if 'mounting' in lay.slices:
-            out[lay.slices['mounting']] = self._mount
+            out[lay.slices['mounting']] = mount
         return out[6:]
 
     def _extra(self, est: Estimate, sd: FloatArray) -> dict[str, Any]:
@@ -1086,6 +1347,27 @@ class CalibrationEstimator:
         out['health'] = {k: v for k, v in h.items()
                          if isinstance(v, (int, float, bool, str))}
         return out
+
+
+def _interp_joints(t_s: FloatArray, tj_s: FloatArray, qj: FloatArray) -> FloatArray:
+    """Joint angles at ``t_s`` by a cubic spline through the samples (linear interpolation
+    through a 20 Hz record of an accelerating move biased the gyro scale by 44-77 ppm;
+    issue 11), clamped to the record's ends."""
+    if len(tj_s) < 4:
+        return np.stack([np.interp(t_s, tj_s, qj[:, i]) for i in range(qj.shape[1])], axis=1)
+    from scipy.interpolate import CubicSpline
+    return CubicSpline(tj_s, qj, axis=0)(np.clip(t_s, tj_s[0], tj_s[-1]))
+
+
+def _point_to_mean(w: FloatArray, f: FloatArray,
+                   prev: tuple[int, FloatArray, FloatArray] | None
+                   ) -> tuple[FloatArray, FloatArray]:
+    """Point samples as interval means (CONTRACT 1 option): the trapezoid of each sample and
+    the one before it, exact for rates linear over the interval (the first sample, without a
+    predecessor, stands for itself)."""
+    w0 = w[:1] if prev is None else prev[1][None, :]
+    f0 = f[:1] if prev is None else prev[2][None, :]
+    return (0.5 * (w + np.vstack([w0, w[:-1]])), 0.5 * (f + np.vstack([f0, f[:-1]])))
 
 
 def check_finite(x: FloatArray, what: str) -> None:

@@ -69,7 +69,8 @@ def _batches_of_samples(samples: Any, batch: int) -> Iterator[ImuBatch | JointBa
 
 def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
                 initial: Estimate | None = None, batch: int = 4000,
-                progress: Callable[[int], None] | None = None) -> CalibrationEstimator:
+                progress: Callable[[int], None] | None = None,
+                start: Any = None) -> CalibrationEstimator:
     """Run one pass over ``samples``: an iterable of ImuSample / JointSample in stamp order,
     or of ImuBatch / JointBatch (joint batches no later than the IMU samples after them), or
     an object with ``batches()`` giving the latter (``msg_adapters.bag.iter_bag``).
@@ -80,7 +81,7 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
         No IMU samples, no joint states of the fixture's joints, no stationary window for the
         alignment, or no motion.
     """
-    est = CalibrationEstimator(fixture, grade, config, initial=initial)
+    est = CalibrationEstimator(fixture, grade, config, initial=initial, start=start)
     batches = samples.batches() if callable(getattr(samples, 'batches', None)) \
         else _batches_of_samples(samples, batch)
     for b in batches:
@@ -127,8 +128,9 @@ def replay(open_samples: Callable[[], Any], fixture: Any, grade: Any,
     init: Estimate | None = None
     est = None
     for _ in range(max(1, iterations)):
+        # later passes keep the first pass's coarse start (the prior mean)
         est = replay_pass(open_samples(), fixture, grade, config, initial=init,
-                          progress=progress)
+                          progress=progress, start=None if est is None else est.start)
         init = est.estimate_state()
     assert est is not None
     return est

@@ -1,0 +1,414 @@
+"""Coarse start from the data, before the filter runs (issue 11; METHODS.md section 4).
+
+A unit on its first calibration has raw errors of percents and milliradians and a mounting
+known to a few degrees; a filter linearised about "no errors, nominal mounting" leaves its
+linear region in the first rotation. This module reads the first stretch of data (or all of
+it) and returns a start point with honest sigmas:
+
+1. stationary windows from the joint states (every joint still for ``min_static_s``);
+2. white-noise densities of gyros and accelerometers in those windows (Allan deviation at the
+   sample period, ``allantools``), and the bias random-walk level from how the window
+   residuals wander (method of moments on consecutive windows, item 5);
+3. the IMU-to-encoder time offset: the gyro rate magnitude against the encoder rate magnitude
+   (both invariant to the unknown mounting and nearly to the scale errors), least squares
+   over a grid of shifts refined by a parabola (METHODS.md: cross-correlation);
+4. gyros by linear least squares over every sample:
+   ``w_meas_i = (B omega_nom)_i + ag_i |w_i| + G_i . f + bg_i`` with ``omega_nom`` the rate of
+   the *nominal* IMU frame from the encoders (spline derivative) plus earth rate; the left
+   polar decomposition ``B = (I + Kg) R_m^T`` gives the symmetric ``Kg`` (CONTRACT 3's
+   definition of the body frame) and the mounting ``R_m`` (``R_enu_imu = R_nominal R_m``);
+   the covariance is cluster-robust over 1 s blocks (the residuals are not white: model
+   error and encoder interpolation);
+5. accelerometers from the window means (Tedaldi et al.'s multi-position idea, linear here
+   because the encoders give the attitude): ``f_meas = A g_nom + ba`` with
+   ``A = (I + Ka) R_m^T``
+   (asymmetry and quadratic terms left to the filter).
+
+Hand-written because no library fits gyro and accelerometer errors to encoder kinematics;
+the pieces (CubicSpline, polar, lstsq, allantools) are scipy's/allantools'.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import CubicSpline
+from scipy.linalg import polar
+from scipy.spatial.transform import Rotation
+
+from . import error_model as em
+
+FloatArray = NDArray[np.float64]
+
+STATIC_TRIM_S = 0.3  # dropped at both ends of a still window (settling, latency up to 50 ms)
+MAX_LATENCY_S = 0.06  # searched joint-stamp latency (CONTRACT 1: up to +-50 ms)
+BLOCK_S = 1.0  # cluster length of the robust covariance
+
+
+class NoRotation(ValueError):
+    """The data hold no rotation (the caller's own "no motion" check says it better)."""
+
+
+@dataclass(frozen=True)
+class StaticWindow:
+    """One stationary window: mean IMU outputs, joint angles, span and sample count."""
+
+    t0_ns: int
+    t1_ns: int
+    q_rad: FloatArray
+    gyro_mean_rad_s: FloatArray
+    accel_mean_m_s2: FloatArray
+    n: int
+
+
+@dataclass(frozen=True)
+class CoarseStart:
+    """A start point for the filter measured from the data (SI, error_model theta order).
+
+    ``sigma_*`` are one-sigma uncertainties of the coarse values (``inf`` where the data did
+    not determine a value: the caller keeps a wide prior there).
+    """
+
+    theta_gyro: FloatArray
+    theta_accel: FloatArray
+    sigma_gyro: FloatArray
+    sigma_accel: FloatArray
+    mounting_rotvec_rad: FloatArray  # R_enu_imu = R_nominal(q) @ exp(mounting)
+    mounting_sigma_rad: float
+    joint_latency_s: float  # joint stamp minus the instant it describes
+    joint_latency_sigma_s: float
+    gyro_noise_rad_s_rt_hz: float
+    accel_noise_m_s2_rt_hz: float
+    gyro_bias_random_walk_rad_s2_rt_hz: float
+    accel_bias_random_walk_m_s3_rt_hz: float
+    n_static_windows: int
+    duration_s: float
+    notes: tuple[str, ...] = field(default=())
+
+    def determined(self, limit: float = 2e-3) -> bool:
+        """True when rotations about three axes and gravity along three directions pinned the
+        gyro and accelerometer scale/misalignment and the mounting to ``limit`` (rad, ratio):
+        a filter started there stays linear. Before that the live estimator gathers data."""
+        worst = max(self.mounting_sigma_rad,
+                    float(np.max(self.sigma_gyro[em.gyro_cols('gyro_scale')])),
+                    float(np.max(self.sigma_gyro[em.gyro_cols('gyro_misalignment')])),
+                    float(np.max(self.sigma_accel[em.accel_cols('accel_scale')])),
+                    float(np.max(self.sigma_accel[em.accel_cols('accel_misalignment')])))
+        return bool(worst < limit)
+
+    def summary(self) -> dict[str, Any]:
+        """Plain values for provenance and logs."""
+        return {
+            'joint_latency_s': self.joint_latency_s,
+            'mounting_rotvec_rad': [float(v) for v in self.mounting_rotvec_rad],
+            'mounting_deg': float(np.degrees(np.linalg.norm(self.mounting_rotvec_rad))),
+            'gyro_noise_rad_s_rt_hz': self.gyro_noise_rad_s_rt_hz,
+            'accel_noise_m_s2_rt_hz': self.accel_noise_m_s2_rt_hz,
+            'gyro_bias_random_walk_rad_s2_rt_hz': self.gyro_bias_random_walk_rad_s2_rt_hz,
+            'accel_bias_random_walk_m_s3_rt_hz': self.accel_bias_random_walk_m_s3_rt_hz,
+            'static_windows': self.n_static_windows, 'duration_s': self.duration_s,
+            'notes': list(self.notes)}
+
+
+def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.int64],
+                   w: FloatArray, f: FloatArray, min_static_s: float, tol_rad: float
+                   ) -> list[StaticWindow]:
+    """Windows where every joint stays within ``tol_rad`` for ``min_static_s`` (trimmed by
+    :data:`STATIC_TRIM_S` at both ends), with the IMU means over them."""
+    if len(t_ns) < 2:
+        return []
+    moving = np.any(np.abs(np.diff(q, axis=0)) > tol_rad, axis=1)
+    mv = np.nonzero(moving)[0]
+    starts = np.concatenate([[0], mv + 1])
+    stops = np.concatenate([mv, [len(t_ns) - 1]])
+    trim = int(STATIC_TRIM_S * 1e9)
+    out = []
+    for a, b in zip(starts, stops):
+        t0, t1 = int(t_ns[a]) + trim, int(t_ns[b]) - trim
+        if (t1 - t0) * 1e-9 < min_static_s:
+            continue
+        j0, j1 = np.searchsorted(t_ns, [t0, t1])
+        qs = q[j0:j1 + 1]
+        if np.ptp(qs, axis=0).max() > 2 * tol_rad:
+            continue
+        k0, k1 = np.searchsorted(t_imu_ns, [t0, t1])
+        if k1 - k0 < 10:
+            continue
+        out.append(StaticWindow(t0, t1, qs.mean(axis=0), w[k0:k1].mean(axis=0),
+                                f[k0:k1].mean(axis=0), int(k1 - k0)))
+    return out
+
+
+def white_noise_density(x: FloatArray, dt_s: float) -> float:
+    """White-noise density [unit/sqrt(Hz)] of a stationary record (N, 3): overlapping Allan
+    deviation at tau = dt (``allantools.oadev``), where white noise dominates:
+    ``N = sigma_A(dt) sqrt(dt)``; the rms over the axes."""
+    import allantools
+    out = []
+    for a in range(x.shape[1]):
+        _, adev, _, _ = allantools.oadev(x[:, a], rate=1.0 / dt_s, data_type='freq',
+                                         taus=np.array([dt_s]))
+        out.append(float(adev[0]) * math.sqrt(dt_s))
+    return float(np.sqrt(np.mean(np.square(out))))
+
+
+def _random_walk(times_s: FloatArray, resid: FloatArray, white_var: FloatArray) -> float:
+    """Random-walk density from window residual means (method of moments on consecutive
+    windows: ``E[(r_k+1 - r_k)^2] = s_k^2 + s_k+1^2 + q dt_k``); 0 when nothing shows."""
+    if len(times_s) < 3:
+        return 0.0
+    d2 = np.sum(np.diff(resid, axis=0) ** 2, axis=1) / resid.shape[1]
+    excess = d2 - (white_var[:-1] + white_var[1:])
+    span = np.diff(times_s)
+    q = float(np.sum(excess) / np.sum(span))
+    return math.sqrt(q) if q > 0 else 0.0
+
+
+def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatArray:
+    """Joint rates from the spline, zero where a joint stays within ``tol_rad`` over +-0.1 s:
+    the derivative of encoder noise (1e-6 rad at 100 Hz: 1.4e-4 rad/s) is a regressor error
+    that would dilute the scale of an axis that only sees small rates (regression dilution:
+    a gyro scale pulled to zero on a one-axis plan)."""
+    qd = spline(t_s, 1)
+    still = np.abs(spline(t_s + 0.1) - spline(t_s - 0.1)) < tol_rad
+    qd[still] = 0.0
+    return qd
+
+
+def _rate_nominal(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: float
+                  ) -> tuple[FloatArray, ...]:
+    """Joint angles, the nominal IMU frame's inertial rate in that frame, and |rate|."""
+    q = spline(t_s)
+    qd = _joint_rates(spline, t_s, tol_rad)
+    axes = fixture.joint_axes_enu(q)  # (N, n, 3)
+    w_enu = np.einsum('nj,njk->nk', qd, axes)
+    R = fixture.R_enu_imu(q)
+    w_nom = np.einsum('nki,nk->ni', R, w_enu + fixture.site.omega_ie_enu)
+    return q, w_nom, np.linalg.norm(w_enu, axis=1)
+
+
+def measure_latency(fixture: Any, spline: CubicSpline, t_s: FloatArray, w: FloatArray,
+                    bias: FloatArray, tol_rad: float) -> tuple[float, float]:
+    """Shift ``s`` [s] with ``|w - bias|(t) ~ |encoder rate|(t + s)`` and its sigma."""
+    wm = np.linalg.norm(w - bias, axis=1)
+
+    def cost(s: float) -> float:
+        _, _, e = _rate_nominal_mag(fixture, spline, t_s + s, tol_rad)
+        return float(np.mean((wm - e) ** 2))
+
+    grid = np.arange(-MAX_LATENCY_S, MAX_LATENCY_S + 1e-12, 2e-3)
+    c = np.array([cost(s) for s in grid])
+    s0 = float(grid[int(np.argmin(c))])
+    fine = s0 + np.arange(-2.5e-3, 2.5e-3 + 1e-12, 2.5e-4)
+    cf = np.array([cost(s) for s in fine])
+    k = int(np.clip(np.argmin(cf), 1, len(fine) - 2))
+    a, b, cc = cf[k - 1], cf[k], cf[k + 1]
+    h = fine[1] - fine[0]
+    den = a - 2 * b + cc
+    s = float(fine[k] + (0.5 * h * (a - cc) / den if den > 0 else 0.0))
+    # sigma from the curvature of the cost: sigma^2 = 2 var(resid) / (N d2cost/ds2)
+    curv = den / h ** 2 if den > 0 else 0.0
+    # (x10: the residuals are correlated over many samples)
+    sig = 10 * math.sqrt(2 * b / (len(t_s) * curv)) if curv > 0 else MAX_LATENCY_S
+    return s, sig
+
+
+def _rate_nominal_mag(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: float
+                      ) -> tuple[None, None, FloatArray]:
+    q = spline(t_s)
+    qd = _joint_rates(spline, t_s, tol_rad)
+    w_enu = np.einsum('nj,njk->nk', qd, fixture.joint_axes_enu(q))
+    return None, None, np.linalg.norm(w_enu, axis=1)
+
+
+def _cluster_lstsq(X: FloatArray, y: FloatArray, block: NDArray[np.intp], beta0: FloatArray,
+                   sd0: FloatArray, s2_floor: float) -> tuple[FloatArray, FloatArray]:
+    """Least squares with a weak Gaussian prior (``beta0``, ``sd0``: what an uncalibrated unit
+    may be, so that directions the data do not excite keep the prior instead of a singular
+    solve) and a cluster-robust (sandwich) covariance over blocks of samples."""
+    # the prior as extra rows of an augmented least squares, solved by SVD: the normal
+    # equations square a condition number of ~1e9 (collinear columns under a tiny noise)
+    s2 = s2_floor
+    prior_rows = np.diag(1.0 / sd0)
+    for _ in range(2):  # the residual variance, then the solution with it
+        A = np.vstack([X / math.sqrt(s2), prior_rows])
+        b = np.concatenate([y / math.sqrt(s2), beta0 / sd0])
+        beta, *_ = np.linalg.lstsq(A, b, rcond=None)
+        r = y - X @ beta
+        s2 = max(float(r @ r) / max(len(y) - X.shape[1], 1), s2_floor)
+    A = np.vstack([X / math.sqrt(s2), prior_rows])
+    _, sv, Vt = np.linalg.svd(A, full_matrices=False)
+    M_inv = (Vt.T / sv ** 2) @ Vt
+    g = X * r[:, None]
+    sums = np.zeros((int(block.max()) + 1, X.shape[1]))
+    np.add.at(sums, block, g)  # sum over clusters of X_b^T r_b
+    cov = M_inv @ (sums.T @ sums / s2 ** 2 + np.diag(1.0 / sd0 ** 2)) @ M_inv
+    return beta, np.maximum(np.diag(cov), np.diag(M_inv))
+
+
+def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
+                 t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Any,
+                 min_static_s: float = 1.0, tol_rad: float = 1e-4,
+                 max_samples: int = 400_000) -> CoarseStart:
+    """The start point from interval-mean IMU samples and (unwrapped) joint states.
+
+    Parameters
+    ----------
+    t_imu_ns, w, f
+        IMU stamps (strictly increasing), mean rates [rad/s], mean specific forces [m/s^2].
+    t_joint_ns, q_joint
+        Joint stamps (strictly increasing) and unwrapped positions (M, n) in fixture order.
+    fixture
+        The nominal fixture (:class:`~imu_calib_ros.core.fixture.Fixture`).
+    """
+    notes: list[str] = []
+    t0 = int(t_imu_ns[0])
+    dt = float(np.median(np.diff(t_imu_ns))) * 1e-9
+    ts = (t_imu_ns - t0) * 1e-9
+    tj = (t_joint_ns - t0) * 1e-9
+    spline = CubicSpline(tj, q_joint, axis=0)
+    wins = static_windows(t_joint_ns, q_joint, t_imu_ns, w, f, min_static_s, tol_rad)
+    # --- noise (item 2): every window, Allan deviation at the sample period
+    n_g, n_a = [], []
+    for win in wins:
+        k0, k1 = np.searchsorted(t_imu_ns, [win.t0_ns, win.t1_ns])
+        if k1 - k0 >= 20:
+            n_g.append(white_noise_density(w[k0:k1], dt))
+            n_a.append(white_noise_density(f[k0:k1], dt))
+    if n_g:
+        noise_g, noise_a = float(np.median(n_g)), float(np.median(n_a))
+    else:
+        k = min(len(w), 2000)
+        noise_g, noise_a = (white_noise_density(w[:k], dt), white_noise_density(f[:k], dt))
+        notes.append('no stationary window: noise from the first samples (motion included)')
+    # --- samples used by the regressions: inside the joint record, thinned if very many
+    inside = (ts - dt > tj[0] + MAX_LATENCY_S) & (ts < tj[-1] - MAX_LATENCY_S)
+    idx = np.nonzero(inside)[0]
+    if len(idx) > max_samples:
+        idx = idx[np.linspace(0, len(idx) - 1, max_samples).astype(np.intp)]
+    t_mid = ts[idx] - 0.5 * dt  # an interval mean describes its mid-point (to dt^2)
+    wi, fi = w[idx], f[idx]
+    bias0 = np.median([win.gyro_mean_rad_s for win in wins], axis=0) if wins \
+        else np.zeros(3)
+    # --- time offset (item 4)
+    moving = np.linalg.norm(wi - bias0, axis=1) > max(20 * noise_g / math.sqrt(dt), 1e-3)
+    if moving.sum() > 50:
+        mv = np.nonzero(moving)[0]
+        mv = mv[np.linspace(0, len(mv) - 1, min(len(mv), 60_000)).astype(np.intp)]
+        s, s_sig = measure_latency(fixture, spline, t_mid[mv], wi[mv], bias0, tol_rad)
+    else:
+        raise NoRotation('no rotation in the data: nothing to calibrate the gyros from')
+    latency = s  # joint stamp = instant + latency
+    # --- gyros (item 2): w_i = B_i . w_nom + ag_i |w_i| + G_i . f + bg_i
+    _, w_nom, _ = _rate_nominal(fixture, spline, t_mid + latency, tol_rad)
+    block = ((t_mid - t_mid[0]) // BLOCK_S).astype(np.intp)
+    X = np.hstack([w_nom, np.zeros((len(idx), 1)), fi, np.ones((len(idx), 1))])
+    B = np.zeros((3, 3))
+    theta_g = np.zeros(em.N_GYRO)
+    sig_g = np.full(em.N_GYRO, np.inf)
+    sB = np.zeros((3, 3))
+    # weak prior of an uncalibrated unit: B = I +- 3 %, asymmetry 0.3 %, G 0.1 (deg/s)/g,
+    # bias 1 deg/s (the raw-unit table of the estimator)
+    sd0 = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.8e-5, 1.8e-5, 1.8e-5, 1.75e-2])
+    # two rounds: the asymmetry regressor |omega_i| is the body rate the previous round
+    # predicts (B w_nom), never the measured |w_i| (the target itself: with one rotation
+    # direction it took half the scale factor)
+    fits = []
+    for _ in range(2):
+        fits = []
+        for i in range(3):
+            X[:, 3] = np.abs(w_nom @ B[i]) if B.any() else np.abs(w_nom[:, i])
+            beta0 = np.zeros(8)
+            beta0[i] = 1.0
+            fits.append(_cluster_lstsq(X, wi[:, i], block, beta0, sd0, noise_g ** 2 / dt))
+        B = np.array([f_[0][0:3] for f_ in fits])
+    for i, (beta, var) in enumerate(fits):
+        sd = np.sqrt(var)
+        B[i] = beta[0:3]
+        sB[i] = sd[0:3]
+        theta_g[em.gyro_cols('gyro_asymmetry').start + i] = beta[3]
+        sig_g[em.gyro_cols('gyro_asymmetry').start + i] = sd[3]
+        c = em.gyro_cols('gyro_g_sensitivity').start + 3 * i
+        theta_g[c:c + 3] = beta[4:7]
+        sig_g[c:c + 3] = sd[4:7]
+        theta_g[em.gyro_cols('gyro_bias').start + i] = beta[7]
+        sig_g[em.gyro_cols('gyro_bias').start + i] = sd[7]
+    # the fit must explain the rotations: a residual far above the white noise and above
+    # 1 % of the rates means the fixture (axes, joint order) does not describe this table
+    resid = np.column_stack([wi[:, i] - (w_nom @ B[i] + theta_g[em.gyro_cols('gyro_bias')][i])
+                             - theta_g[em.gyro_cols('gyro_asymmetry')][i] * np.abs(w_nom @ B[i])
+                             for i in range(3)])
+    rms = float(np.sqrt(np.mean(resid[moving] ** 2))) if moving.any() else 0.0
+    rate_rms = float(np.sqrt(np.mean(wi[moving] ** 2))) if moving.any() else 0.0
+    if rms > max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms):
+        raise ValueError(f'the gyro rates do not follow the fixture\'s joint rotations '
+                         f'({rms:.3g} rad/s rms left after the best linear fit, '
+                         f'{100 * rms / rate_rms:.0f} % of the rates): check the fixture file\'s '
+                         'joint axes and names against the table')
+    if np.linalg.det(B) <= 0 or not np.all(np.isfinite(B)):
+        raise ValueError('the gyro outputs do not follow the encoder rotations (wrong '
+                         'fixture axes, joint names or gyro units?)')
+    U, P = polar(B, side='left')  # B = P U: P symmetric = I + Kg, U = R_m^T
+    Kg = P - np.eye(3)
+    R_m = U.T
+    theta_g[em.gyro_cols('gyro_scale')] = np.diag(Kg)
+    sig_g[em.gyro_cols('gyro_scale')] = np.diag(sB)
+    c = em.gyro_cols('gyro_misalignment').start
+    for k, (i, j) in enumerate(em.MIS_SYM):
+        theta_g[c + k] = Kg[i, j]
+        sig_g[c + k] = 0.5 * math.hypot(sB[i, j], sB[j, i])
+    mount = Rotation.from_matrix(R_m).as_rotvec()
+    mount_sig = float(np.max(sB[~np.eye(3, dtype=bool)]))
+    # --- accelerometers (item 2): window means f = A g_nom + aa |f| + ba
+    theta_a = np.zeros(em.N_ACCEL)
+    sig_a = np.full(em.N_ACCEL, np.inf)
+    g = fixture.site.gravity
+    rw_g = rw_a = 0.0
+    if wins:
+        qw = np.array([win.q_rad for win in wins])
+        g_nom = np.einsum('nki,k->ni', fixture.R_enu_imu(qw), np.array([0.0, 0.0, g]))
+        fm = np.array([win.accel_mean_m_s2 for win in wins])
+        nw = np.array([win.n for win in wins], float)
+        A = np.zeros((3, 3))
+        sA = np.zeros((3, 3))
+        res_a = np.zeros_like(fm)
+        Xa = np.hstack([g_nom, np.ones((len(wins), 1))])
+        # window means weighted by their white noise; a weak prior (A = I +- 3 %, bias
+        # 100 mg) keeps what the windows do not span; scale asymmetry and quadratic terms are
+        # left to the filter (with the six axis-up/down positions of most plans |f_i| is
+        # collinear with bias and scale)
+        sd0 = np.array([3e-2, 3e-2, 3e-2, 1.0])
+        rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
+        for i in range(3):
+            beta0 = np.zeros(4)
+            beta0[i] = 1.0
+            beta, var = _cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
+                                       beta0, sd0, noise_a ** 2 / dt)
+            sd = np.sqrt(var)
+            A[i] = beta[0:3]
+            sA[i] = sd[0:3]
+            res_a[:, i] = fm[:, i] - Xa @ beta
+            theta_a[em.accel_cols('accel_bias').start + i] = beta[3]
+            sig_a[em.accel_cols('accel_bias').start + i] = sd[3]
+        Ka = A @ R_m - np.eye(3)
+        theta_a[em.accel_cols('accel_scale')] = np.diag(Ka)
+        sig_a[em.accel_cols('accel_scale')] = np.diag(sA)
+        c = em.accel_cols('accel_misalignment').start
+        for k, (i, j) in enumerate(em.OFF6):
+            theta_a[c + k] = Ka[i, j]
+            sig_a[c + k] = math.hypot(sA[i, j], mount_sig)
+        # --- bias random walk (item 5) from how the window residuals wander
+        tw = np.array([(win.t0_ns + win.t1_ns) * 0.5e-9 for win in wins])
+        rw_a = _random_walk(tw, res_a, noise_a ** 2 / (nw * dt))
+        w_pred = (np.einsum('ij,nj->ni', B, np.einsum(
+            'nki,k->ni', fixture.R_enu_imu(qw), fixture.site.omega_ie_enu))
+            + theta_g[em.gyro_cols('gyro_bias')]
+            + fm @ theta_g[em.gyro_cols('gyro_g_sensitivity')].reshape(3, 3).T)
+        res_g = np.array([win.gyro_mean_rad_s for win in wins]) - w_pred
+        rw_g = _random_walk(tw, res_g, noise_g ** 2 / (nw * dt))
+    return CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
+                       noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
+                       tuple(notes))
