@@ -234,7 +234,10 @@ def test_estimates_converge_on_a_short_plan(ros: Node, tmp_path: Path) -> None:
     plan.write_text("name: t\ndescription: short\nsteps:\n  - dwell: {duration_s: 5}\n"
                     "  - srt_sequence: {id: '4', dwell_s: 3, rotation_s: 3}\n"
                     "  - srt_sequence: {id: '5', dwell_s: 3, rotation_s: 3}\n")  # 34 s
-    cal = start('calibration', {'use_sim_time': True, 'output_file': str(out)}, tmp_path)
+    # a navigation-grade unit: the hint separates bias, asymmetry and quadratic terms, which
+    # flips between +1 g and -1 g alone cannot (a raw unit would need more poses)
+    cal = start('calibration', {'use_sim_time': True, 'output_file': str(out),
+                                'imu_grade': 'nav_grade'}, tmp_path)
     sim = start('turntable_sim', {'plan': str(plan), 'speed': 4.0, 'truth_file': str(truth),
                                   'wait_for_subscribers': 1}, tmp_path)
     from diagnostic_msgs.msg import DiagnosticArray
@@ -283,8 +286,10 @@ def test_calibration_node_detects_the_imu_rate(ros: Node, tmp_path: Path) -> Non
     from imu_calib_ros.core.fixture import Fixture
     from imu_calib_ros.core.imu_grade import load_grade
     from imu_calib_ros.nodes.common import StreamCompensation
-    proc = start('calibration', {'diagnostics_rate_hz': 5.0, 'estimator_mode': 'thread'},
-                 tmp_path)
+    # the grade hint gives the corrected stream its noise term (no grade: calibration
+    # uncertainty only, until one is given)
+    proc = start('calibration', {'diagnostics_rate_hz': 5.0, 'estimator_mode': 'thread',
+                                 'imu_grade': 'nav_grade'}, tmp_path)
     got: list[Any] = []
     diags: list[Any] = []
     sub = ros.create_subscription(Imu, 'imu/data_corrected', got.append, reliable_qos(1000))

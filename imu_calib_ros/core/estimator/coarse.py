@@ -7,8 +7,8 @@ it) and returns a start point with honest sigmas:
 
 1. stationary windows from the joint states (every joint still for ``min_static_s``);
 2. white-noise densities of gyros and accelerometers in those windows (Allan deviation at the
-   sample period, ``allantools``), and the bias random-walk level from how the window
-   residuals wander (method of moments on consecutive windows, item 5);
+   sample period, ``allantools``), and the bias random-walk level from revisits of a pose
+   (method of moments, no model needed; item 5);
 3. the IMU-to-encoder time offset: the gyro rate magnitude against the encoder rate magnitude
    (both invariant to the unknown mounting and nearly to the scale errors), least squares
    over a grid of shifts refined by a parabola (METHODS.md: cross-correlation);
@@ -155,16 +155,30 @@ def white_noise_density(x: FloatArray, dt_s: float) -> float:
     return float(np.sqrt(np.mean(np.square(out))))
 
 
-def _random_walk(times_s: FloatArray, resid: FloatArray, white_var: FloatArray) -> float:
-    """Random-walk density from window residual means (method of moments on consecutive
-    windows: ``E[(r_k+1 - r_k)^2] = s_k^2 + s_k+1^2 + q dt_k``); 0 when nothing shows."""
-    if len(times_s) < 3:
+def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: float) -> float:
+    """Bias random-walk density from revisits of one pose (item 5): between two windows at the
+    same joint angles (within 0.5 mrad) the attitude, the earth rate and every scale error are
+    the same, so the change of the window residual (mean output minus the coarse model, which
+    removes what the small pose difference changes) is ``E[d^2] = s_1^2 + s_2^2 + q dt``:
+    white noise of the two means plus the walk over the time between. The median over
+    consecutive revisits of each pose; 0 with fewer than three revisits or when nothing
+    stands out of the white noise."""
+    ratio, rate = [], []
+    for j in range(1, len(wins)):
+        for i in range(j - 1, -1, -1):  # the latest earlier visit of this pose
+            dq = np.angle(np.exp(1j * (wins[j].q_rad - wins[i].q_rad)))
+            if np.max(np.abs(dq)) < 5e-4:
+                d2 = float(np.mean((resid[j] - resid[i]) ** 2))
+                s2 = white ** 2 / dt * (1 / wins[i].n + 1 / wins[j].n)
+                span = (wins[j].t0_ns + wins[j].t1_ns - wins[i].t0_ns - wins[i].t1_ns) * 0.5e-9
+                ratio.append(d2 / s2)
+                rate.append((d2 - s2) / span)
+                break
+    # medians, so that one odd pair is not a drift; a walk must stand out of the white
+    # noise (the ratio is chi-square(3)/3 around 1 without one)
+    if len(ratio) < 3 or float(np.median(ratio)) < 1.5:
         return 0.0
-    d2 = np.sum(np.diff(resid, axis=0) ** 2, axis=1) / resid.shape[1]
-    excess = d2 - (white_var[:-1] + white_var[1:])
-    span = np.diff(times_s)
-    q = float(np.sum(excess) / np.sum(span))
-    return math.sqrt(q) if q > 0 else 0.0
+    return math.sqrt(max(float(np.median(rate)), 0.0))
 
 
 def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatArray:
@@ -194,9 +208,13 @@ def measure_latency(fixture: Any, spline: CubicSpline, t_s: FloatArray, w: Float
                     bias: FloatArray, tol_rad: float) -> tuple[float, float]:
     """Shift ``s`` [s] with ``|w - bias|(t) ~ |encoder rate|(t + s)`` and its sigma."""
     wm = np.linalg.norm(w - bias, axis=1)
+    # the joint axes at the unshifted instants: over +-60 ms they turn by a few degrees at
+    # most, which changes |sum u_i qd_i| only where two joints move at once (second order)
+    axes = fixture.joint_axes_enu(spline(t_s))
 
     def cost(s: float) -> float:
-        _, _, e = _rate_nominal_mag(fixture, spline, t_s + s, tol_rad)
+        qd = _joint_rates(spline, t_s + s, tol_rad)
+        e = np.linalg.norm(np.einsum('nj,njk->nk', qd, axes), axis=1)
         return float(np.mean((wm - e) ** 2))
 
     grid = np.arange(-MAX_LATENCY_S, MAX_LATENCY_S + 1e-12, 2e-3)
@@ -216,37 +234,37 @@ def measure_latency(fixture: Any, spline: CubicSpline, t_s: FloatArray, w: Float
     return s, sig
 
 
-def _rate_nominal_mag(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: float
-                      ) -> tuple[None, None, FloatArray]:
-    q = spline(t_s)
-    qd = _joint_rates(spline, t_s, tol_rad)
-    w_enu = np.einsum('nj,njk->nk', qd, fixture.joint_axes_enu(q))
-    return None, None, np.linalg.norm(w_enu, axis=1)
-
-
 def _cluster_lstsq(X: FloatArray, y: FloatArray, block: NDArray[np.intp], beta0: FloatArray,
                    sd0: FloatArray, s2_floor: float) -> tuple[FloatArray, FloatArray]:
     """Least squares with a weak Gaussian prior (``beta0``, ``sd0``: what an uncalibrated unit
     may be, so that directions the data do not excite keep the prior instead of a singular
     solve) and a cluster-robust (sandwich) covariance over blocks of samples."""
-    # the prior as extra rows of an augmented least squares, solved by SVD: the normal
-    # equations square a condition number of ~1e9 (collinear columns under a tiny noise)
-    s2 = s2_floor
+    # the prior as extra rows of an augmented least squares, solved by SVD (the normal
+    # equations square a condition number of ~1e9: collinear columns under a tiny noise);
+    # the data rows enter through the R factor of QR([X y]) (8 rows instead of N)
+    Ry = np.linalg.qr(np.column_stack([X, y]), mode='r')
+    n_p = X.shape[1]
+    R, qty = Ry[:n_p, :n_p], Ry[:n_p, n_p]
+    rss0 = float(Ry[n_p, n_p] ** 2) if Ry.shape[0] > n_p else 0.0
     prior_rows = np.diag(1.0 / sd0)
+    s2 = s2_floor
     for _ in range(2):  # the residual variance, then the solution with it
-        A = np.vstack([X / math.sqrt(s2), prior_rows])
-        b = np.concatenate([y / math.sqrt(s2), beta0 / sd0])
-        beta, *_ = np.linalg.lstsq(A, b, rcond=None)
-        r = y - X @ beta
-        s2 = max(float(r @ r) / max(len(y) - X.shape[1], 1), s2_floor)
-    A = np.vstack([X / math.sqrt(s2), prior_rows])
-    _, sv, Vt = np.linalg.svd(A, full_matrices=False)
+        sig = math.sqrt(s2)
+        beta, *_ = np.linalg.lstsq(np.vstack([R / sig, prior_rows]),
+                                   np.concatenate([qty / sig, beta0 / sd0]), rcond=None)
+        rss = float(np.sum((qty - R @ beta) ** 2)) + rss0
+        s2 = max(rss / max(len(y) - n_p, 1), s2_floor)
+    _, sv, Vt = np.linalg.svd(np.vstack([R / math.sqrt(s2), prior_rows]), full_matrices=False)
     M_inv = (Vt.T / sv ** 2) @ Vt
-    g = X * r[:, None]
-    sums = np.zeros((int(block.max()) + 1, X.shape[1]))
-    np.add.at(sums, block, g)  # sum over clusters of X_b^T r_b
+    r = y - X @ beta
+    sums = np.zeros((int(block.max()) + 1, n_p))
+    np.add.at(sums, block, X * r[:, None])  # sum over clusters of X_b^T r_b
     cov = M_inv @ (sums.T @ sums / s2 ** 2 + np.diag(1.0 / sd0 ** 2)) @ M_inv
-    return beta, np.maximum(np.diag(cov), np.diag(M_inv))
+    var = np.maximum(np.diag(cov), np.diag(M_inv))
+    # what the data left at the weak prior is not measured: its prior mean, sigma inf (the
+    # caller's prior: the grade hint or the raw-unit table)
+    unmeasured = var > (0.5 * sd0) ** 2
+    return np.where(unmeasured, beta0, beta), np.where(unmeasured, np.inf, var)
 
 
 def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
@@ -361,12 +379,11 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         theta_g[c + k] = Kg[i, j]
         sig_g[c + k] = 0.5 * math.hypot(sB[i, j], sB[j, i])
     mount = Rotation.from_matrix(R_m).as_rotvec()
-    mount_sig = float(np.max(sB[~np.eye(3, dtype=bool)]))
+    mount_sig = float(np.max(sB[~np.eye(3, dtype=bool)]))  # inf where not measured
     # --- accelerometers (item 2): window means f = A g_nom + aa |f| + ba
     theta_a = np.zeros(em.N_ACCEL)
     sig_a = np.full(em.N_ACCEL, np.inf)
     g = fixture.site.gravity
-    rw_g = rw_a = 0.0
     if wins:
         qw = np.array([win.q_rad for win in wins])
         g_nom = np.einsum('nki,k->ni', fixture.R_enu_imu(qw), np.array([0.0, 0.0, g]))
@@ -374,7 +391,6 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         nw = np.array([win.n for win in wins], float)
         A = np.zeros((3, 3))
         sA = np.zeros((3, 3))
-        res_a = np.zeros_like(fm)
         Xa = np.hstack([g_nom, np.ones((len(wins), 1))])
         # window means weighted by their white noise; a weak prior (A = I +- 3 %, bias
         # 100 mg) keeps what the windows do not span; scale asymmetry and quadratic terms are
@@ -390,7 +406,6 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
             sd = np.sqrt(var)
             A[i] = beta[0:3]
             sA[i] = sd[0:3]
-            res_a[:, i] = fm[:, i] - Xa @ beta
             theta_a[em.accel_cols('accel_bias').start + i] = beta[3]
             sig_a[em.accel_cols('accel_bias').start + i] = sd[3]
         Ka = A @ R_m - np.eye(3)
@@ -400,15 +415,20 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         for k, (i, j) in enumerate(em.OFF6):
             theta_a[c + k] = Ka[i, j]
             sig_a[c + k] = math.hypot(sA[i, j], mount_sig)
-        # --- bias random walk (item 5) from how the window residuals wander
-        tw = np.array([(win.t0_ns + win.t1_ns) * 0.5e-9 for win in wins])
-        rw_a = _random_walk(tw, res_a, noise_a ** 2 / (nw * dt))
-        w_pred = (np.einsum('ij,nj->ni', B, np.einsum(
-            'nki,k->ni', fixture.R_enu_imu(qw), fixture.site.omega_ie_enu))
-            + theta_g[em.gyro_cols('gyro_bias')]
-            + fm @ theta_g[em.gyro_cols('gyro_g_sensitivity')].reshape(3, 3).T)
-        res_g = np.array([win.gyro_mean_rad_s for win in wins]) - w_pred
-        rw_g = _random_walk(tw, res_g, noise_g ** 2 / (nw * dt))
+    # --- bias random walk (item 5) from revisits of a pose
+    rw_g = rw_a = 0.0
+    if wins:
+        R_w = fixture.R_enu_imu(np.array([win.q_rad for win in wins]))
+        pred_g = np.einsum('nki,k->ni', R_w, fixture.site.omega_ie_enu) @ B.T
+        pred_a = np.einsum('nki,k->ni', R_w, np.array([0.0, 0.0, g])) @ A.T
+        rw_g = _random_walk(wins, np.array([w.gyro_mean_rad_s for w in wins]) - pred_g,
+                            noise_g, dt)
+        rw_a = _random_walk(wins, np.array([w.accel_mean_m_s2 for w in wins]) - pred_a,
+                            noise_a, dt)
+    # an error the data did not measure starts at its prior mean (none), whatever the
+    # mounting rotation mixed into it
+    theta_g = np.where(np.isfinite(sig_g), theta_g, 0.0)
+    theta_a = np.where(np.isfinite(sig_a), theta_a, 0.0)
     return CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
                        noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
                        tuple(notes))

@@ -84,8 +84,8 @@ class EstimatorConfig:
         'above this (the gyros cannot hold attitude over a plan)', 0.0)
     max_restarts: int = setting(3, 'a diverged filter restarts from the coarse start with '
                                 'inflated covariance this many times before giving up', 0, 100)
-    settle_s: float = setting(30.0, 'after each alignment, feedback after every update for this '
-                              'long (the uncertainty is large)', 0.0)
+    settle_s: float = setting(30.0, 'after a re-alignment or restart (the filter left its linear '
+                              'region), feedback after every update for this long', 0.0)
     cascade_updates: int = setting(10, 'this many gated updates in a row re-align the navigation '
                                    '(calibration states and covariance kept)', 2, 100000)
     max_pending_s: float = setting(2.0, 'longest wait for joint states before updating without '

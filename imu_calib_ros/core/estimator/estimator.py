@@ -72,11 +72,12 @@ RAW_PRIOR: dict[str, float] = {
     'accel_scale': 3e-2, 'accel_asymmetry': 3e-3, 'accel_misalignment': 3e-2,
     'accel_quadratic': 1e-4, 'size_effect': 2e-2}
 # Least prior around a coarse value, for the model errors of the coarse fit (accelerometer
-# asymmetry and quadratic terms are not in it; they shift bias and scale by up to ~aa g).
+# asymmetry and quadratic terms are not in it; they shift bias and scale by ~aa g, which the
+# fit's residuals, hence its sigmas, also show).
 COARSE_FLOOR: dict[str, float] = {
     'gyro_bias': 4.8e-9, 'gyro_scale': 1e-5, 'gyro_asymmetry': 1e-5,
-    'gyro_misalignment': 1e-5, 'gyro_g_sensitivity': 1e-8, 'accel_bias': 1e-2,
-    'accel_scale': 2e-3, 'accel_misalignment': 1e-3, 'accel_asymmetry': 3e-3,
+    'gyro_misalignment': 1e-5, 'gyro_g_sensitivity': 1e-8, 'accel_bias': 1e-3,
+    'accel_scale': 2e-4, 'accel_misalignment': 2e-4, 'accel_asymmetry': 3e-3,
     'accel_quadratic': 1e-4, 'size_effect': 2e-2}
 
 
@@ -86,8 +87,8 @@ def prior_sigmas(grade: Any, config: EstimatorConfig,
 
     Without a coarse start: the grade's sigmas x ``prior_sigma_scale`` (the old behaviour,
     ``auto_start: false``). With one (issue 11): ``prior_inflation`` x the coarse sigma, never
-    below :data:`COARSE_FLOOR` nor the grade hint; groups the data did not determine get
-    :data:`RAW_PRIOR` (never below the grade hint either).
+    below :data:`COARSE_FLOOR` nor the grade hint; values the data did not determine get the
+    grade hint's sigma if one was given, else :data:`RAW_PRIOR`.
     """
     k = config.prior_sigma_scale
     hint: dict[str, FloatArray] = {}
@@ -113,18 +114,23 @@ def prior_sigmas(grade: Any, config: EstimatorConfig,
             side = em.GROUP_INFO[name][4]
             cols = em.gyro_cols(name) if side == 'g' else em.accel_cols(name)
             sig = (start.sigma_gyro if side == 'g' else start.sigma_accel)[cols]
-            p = np.where(np.isfinite(sig),
+            measured = np.isfinite(sig)
+            p = np.where(measured,
                          np.maximum(config.prior_inflation * np.nan_to_num(sig, posinf=0.0),
                                     COARSE_FLOOR[name]), raw)
             if name in hint:
-                # a grade that says "none" (sigma 0: optical gyros have no G) drops the group
-                p = np.where(hint[name] > 0, np.maximum(p, hint[name]), 0.0)
+                # the hint where the data measured nothing (the user's knowledge of the unit),
+                # else never narrower than it; a grade that says "none" (sigma 0: optical
+                # gyros have no G) drops the group
+                h = hint[name]
+                p = np.where(h > 0, np.where(measured, np.maximum(p, h), h), 0.0)
             res[name] = p
     res['time_offset'] = np.full(1, config.time_offset_sigma_s)
     res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
     mount = config.mounting_sigma_rad
     if start is not None:
-        mount = max(mount, config.prior_inflation * start.mounting_sigma_rad)
+        ms = start.mounting_sigma_rad
+        mount = max(mount, config.prior_inflation * ms if math.isfinite(ms) else 0.2)
     res['mounting'] = np.full(3, mount)
     return res
 
@@ -247,6 +253,7 @@ class CalibrationEstimator:
         self._latency_ns = 0 if self.start is None else int(round(
             self.start.joint_latency_s * 1e9))
         self._settle_until_ns: int | None = None
+        self._unsettled = False  # feedback after every update at the next alignment
         self._gated_run = 0
         self._cascade = False
 
@@ -454,8 +461,14 @@ class CalibrationEstimator:
             return (np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), self._nominal_lever_arm(),
                     np.zeros(3))
         R_m = Rotation.from_rotvec(st.mounting_rotvec_rad).as_matrix()
-        return (st.theta_gyro.copy(), st.theta_accel.copy(), R_m.T @ self._nominal_lever_arm(),
-                st.mounting_rotvec_rad.copy())
+        # a group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
+        # a coarse G of 1.4e-7 (rad/s)/(m/s^2) kept under a grade that has no G acted as an
+        # unmodelled 0.3 deg/h bias (6 sigma)
+        tg, ta = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
+        lay = self.layout
+        tg[lay.gyro_cols] = st.theta_gyro[lay.gyro_cols]
+        ta[lay.accel_cols] = st.theta_accel[lay.accel_cols]
+        return tg, ta, R_m.T @ self._nominal_lever_arm(), st.mounting_rotvec_rad.copy()
 
     def _prior_mean(self) -> FloatArray:
         """Where pass 1 starts (:meth:`_coarse_point`), as calibration-state values."""
@@ -903,6 +916,7 @@ class CalibrationEstimator:
         inflated (x2 per restart) and re-aligns at the next stationary window (issue 11)."""
         self.restarts += 1
         self.counters['restarts'] = self.restarts
+        self._unsettled = True
         _LOG.warning('calibration filter diverged (%s): restart %d of %d from the start point '
                      'with inflated covariance', reason, self.restarts, self.config.max_restarts)
         self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
@@ -1079,7 +1093,9 @@ class CalibrationEstimator:
         R0 = R_lev @ R_fix
         if cfg.noise_source == 'data' and self.start is None:
             self._noise = self._noise_from_data(w_c, f_c)
-        self._settle_until_ns = int(t[0]) + int(cfg.settle_s * 1e9)
+        if self._unsettled:  # after a gate cascade or a restart: the start is poor
+            self._settle_until_ns = int(t[0]) + int(cfg.settle_s * 1e9)
+            self._unsettled = False
         self._nav = Strapdown(self.fixture.site, R0)
         self._start_filter()
         self._running = True
@@ -1173,6 +1189,7 @@ class CalibrationEstimator:
         self._cascade = False
         self._gated_run = 0
         self.counters['realignments'] += 1
+        self._unsettled = True
         _LOG.warning('%d measurement updates in a row failed the gate: navigation re-aligned '
                      'at the next stationary window (calibration kept)',
                      self.config.cascade_updates)

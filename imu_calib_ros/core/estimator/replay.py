@@ -100,7 +100,7 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
         what = ('joint states lack the fixture joints ' + names if c['joint_missing_names']
                 else 'no joint states in the input')
         raise InputError(f'{what}: check --joint-topic and the fixture file')
-    if not est.is_running:
+    if not est.is_running and est.counters['imu_processed'] == 0:
         raise InputError(f'no stationary window of {config.init_window_s:g} s with joint '
                          'states for the initial alignment: start the recording at rest')
     if est.joint_travel_rad < 1e-2:
