@@ -43,6 +43,8 @@ def ros() -> Iterator[Node]:
 
 
 def start(module: str, params: dict[str, Any], cwd: Path) -> subprocess.Popen[bytes]:
+    if module == 'calibration':  # no default fixture: the tests' simulated table
+        params = {'fixture': 'three_axis', **params}
     return start_node(module, params, cwd)
 
 

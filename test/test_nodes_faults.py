@@ -43,7 +43,7 @@ def ros() -> Iterator[Node]:
 
 
 def start(params: dict[str, Any], cwd: Path) -> subprocess.Popen[bytes]:
-    return start_node('calibration', params, cwd)
+    return start_node('calibration', {'fixture': 'three_axis', **params}, cwd)
 
 
 def stop(proc: subprocess.Popen[bytes], sig: int = signal.SIGINT) -> str:

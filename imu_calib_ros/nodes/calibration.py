@@ -55,8 +55,9 @@ from ..core.estimator.config import EstimatorConfig
 from ..core.types import JointSample
 from ..msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
                                     time_msg_from_ns)
-from .common import (InputThread, StreamCompensation, declare_config, diag9, finite,
-                     finite3, latched_qos, quiet_publisher, reliable_qos, run_node, sensor_qos)
+from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
+                     diag9, finite, finite3, latched_qos, quiet_publisher, reliable_qos,
+                     run_node, sensor_qos)
 from .estimator_runner import EstimatorRunner, Snapshot
 
 NODE_NAME = 'calibration'
@@ -92,8 +93,10 @@ LIVE_BLOCK_CHUNKS = 10
 class CalibrationNodeConfig:
     """Parameters of the calibration node (``config/calibration_node.yaml``)."""
 
-    fixture: str = field(default='three_axis', metadata={
-        'doc': 'fixture file (CONTRACT 2) or shipped fixture name'})
+    fixture: str = field(default='', metadata={
+        'doc': 'fixture file (CONTRACT 2) of the table in use, or a shipped fixture name '
+               '(three_axis, savage_2axis)',
+        'required': "a calibration against another table's kinematics is silently wrong"})
     imu_grade: str = field(default='nav_grade', metadata={
         'doc': 'IMU grade (config/imus name or path): noise and prior sigmas'})
     frame_id: str = field(default='', metadata={
@@ -528,10 +531,38 @@ def _health_values(health: dict[str, Any], prefix: str = 'estimator.') -> dict[s
     return out
 
 
+INTERFACE = NodeInterface(
+    name=NODE_NAME, config=CalibrationNodeConfig, params_file='config/calibration_node.yaml',
+    summary='Live turntable calibration of an IMU: a strapdown navigator and an error EKF '
+            'estimate the sensor errors of CONTRACT 3 with one-sigma values from the raw IMU '
+            'and the table\'s joint states; the raw stream is republished corrected with the '
+            'latest good estimate.',
+    subscribes=(
+        Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu',
+                 'raw IMU, interval means (CONTRACT 1); sensor-data QoS'),
+        Endpoint('joint_states', 'sensor_msgs/msg/JointState',
+                 'positions of the fixture joints; sensor-data QoS'),
+        Endpoint('/clock', 'rosgraph_msgs/msg/Clock', 'with use_sim_time:=true')),
+    publishes=(
+        Endpoint('imu/data_corrected', 'sensor_msgs/msg/Imu',
+                 'every accepted raw sample, compensated, same stamp and frame'),
+        Endpoint('~/estimates', 'diagnostic_msgs/msg/DiagnosticArray',
+                 'every CONTRACT 4 value and its sigma, transient local'),
+        Endpoint('~/<group>, ~/<group>_sigma', 'geometry_msgs/msg/Vector3Stamped',
+                 'one pair per vector group (' + ', '.join(VECTOR_GROUPS) + '), transient '
+                 'local'),
+        Endpoint('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                 'input rates, rejections by reason, estimator health; OK/WARN/ERROR/STALE')),
+    services=(
+        Endpoint('~/save_calibration', 'std_srvs/srv/Trigger',
+                 'write the last good estimate to output_file (CONTRACT 4, atomic)'),
+        Endpoint('~/reset', 'std_srvs/srv/Trigger', 'restart the estimator')))
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``calibration``."""
     sys.setswitchinterval(0.0005)  # the IMU thread gets the GIL within 0.5 ms (default 5 ms)
-    return run_node(CalibrationNode, args)
+    return run_node(CalibrationNode, args, INTERFACE)
 
 
 if __name__ == '__main__':
