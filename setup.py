@@ -1,13 +1,19 @@
 """ament_python package definition (builds with colcon, installs with pip)."""
+import re
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'imu_calib_ros'
+# The version is written once, in package.xml (what colcon and rosdep read); `imu-calib
+# --version` and imu_calib_ros.__version__ read it back from the installed metadata.
+VERSION = re.search(r'<version>\s*([^<\s]+)\s*</version>',
+                    (Path(__file__).resolve().parent / 'package.xml').read_text()).group(1)
 
 setup(
     name=PACKAGE,
-    version='0.1.0',
+    version=VERSION,
     packages=find_packages(exclude=['test', 'test.*', 'bench']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
@@ -17,6 +23,7 @@ setup(
         ('share/' + PACKAGE + '/config/imus', glob('config/imus/*.yaml')),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.py')),
+        ('share/' + PACKAGE + '/docs', ['docs/CONTRACT.md']),
     ],
     include_package_data=True,
     install_requires=['setuptools'],

@@ -185,7 +185,8 @@ def main() -> int:
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     py = [sys.executable, '-m']
-    cal = py + ['imu_calib_ros.nodes.calibration', '--ros-args', '-p', 'imu_rate_hz:=1000.0',
+    cal = py + ['imu_calib_ros.nodes.calibration', '--ros-args', '-p', 'fixture:=three_axis',
+                '-p', 'imu_rate_hz:=1000.0',
                 '-p', 'frame_id:=imu_link', '-p', 'diagnostics_rate_hz:=2.0']
     results = {}
     modes = ['process'] if args.skip_thread else ['process', 'thread']

@@ -10,4 +10,19 @@ Layout (functional core, thin shell):
 - ``imu_calib_ros.cli``: the ``imu-calib`` command.
 """
 
-__version__ = '0.1.0'
+
+def __getattr__(name: str) -> str:
+    """``__version__``, read when asked. The version is written once, in package.xml:
+    read from it in a source tree (also an editable install), else from the installed
+    package's metadata (which setup.py took from package.xml)."""
+    if name != '__version__':
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    import re
+    from pathlib import Path
+    xml = Path(__file__).resolve().parents[1] / 'package.xml'
+    if xml.is_file():
+        found = re.search(r'<version>\s*([^<\s]+)\s*</version>', xml.read_text())
+        if found:
+            return found.group(1)
+    from importlib import metadata
+    return metadata.version(__name__)

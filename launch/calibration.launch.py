@@ -14,7 +14,9 @@ def generate_launch_description() -> LaunchDescription:
     params = PathJoinSubstitution([FindPackageShare('imu_calib_ros'), 'config',
                                    'calibration_node.yaml'])
     return LaunchDescription([
-        DeclareLaunchArgument('fixture', default_value='three_axis'),
+        # no default: the node refuses to start without the fixture of the table in use
+        DeclareLaunchArgument('fixture', description='fixture file (CONTRACT 2) of the table, '
+                              'or a shipped name such as three_axis'),
         DeclareLaunchArgument('use_sim_time', default_value='false'),
         Node(package='imu_calib_ros', executable='calibration', name='calibration',
              parameters=[params, {'fixture': LaunchConfiguration('fixture'),

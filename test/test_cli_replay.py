@@ -45,6 +45,16 @@ def test_replay_matches_truth_within_sigma(bag: Path) -> None:
     assert calib.fixed == ()
 
 
+def test_topics_without_leading_slash_find_the_bag_topics(bag: Path) -> None:
+    """``--imu-topic imu/data_raw`` is the bag's ``/imu/data_raw`` (ROS 2 bags store absolute
+    names); it failed with "missing topic" before."""
+    out = bag / 'relative_topics.yaml'
+    assert main(['replay', str(bag / 'bag'), '--fixture', 'three_axis', '--output', str(out),
+                 '--imu-topic', 'imu/data_raw', '--joint-topic', 'joint_states',
+                 '--quiet']) == 0
+    assert CalibrationResult.load(out).frame_id == 'imu_front'
+
+
 @pytest.mark.parametrize('args, words', [
     (['--fixture', 'three_axis'], 'does not exist'),
     (['--fixture', 'no_such_fixture'], 'no_such_fixture'),

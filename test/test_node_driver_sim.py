@@ -40,6 +40,7 @@ TOLERANCE_DEG = 1e-3
 
 def _run_driver(tmp_path: Path, **params: object) -> tuple[int, str]:
     cmd = [sys.executable, '-m', 'imu_calib_ros.nodes.turntable_driver', '--ros-args']
+    params = {'fixture': 'three_axis', **params}  # the simulator's table (no default)
     for k, v in params.items():
         cmd += ['-p', f'{k}:={str(v).lower() if isinstance(v, bool) else v}']
     try:
@@ -111,7 +112,8 @@ def test_driver_interrupted_before_the_plan_ends_fails(tmp_path: Path) -> None:
     import time
     plan = tmp_path / 'plan.yaml'
     plan.write_text('name: long\nsteps:\n  - dwell: {duration_s: 60}\n')
-    drv = start_node('turntable_driver', {'plan': str(plan), 'wait_for_subscribers': 0,
+    drv = start_node('turntable_driver', {'fixture': 'three_axis', 'plan': str(plan),
+                                          'wait_for_subscribers': 0,
                                           'wait_timeout_s': 0.5}, tmp_path)
     time.sleep(4.0)
     log = stop_node(drv, signal.SIGINT)

@@ -36,12 +36,12 @@ def test_declared_defaults_are_the_dataclass_defaults_without_a_params_file() ->
     from imu_calib_ros.core.estimator import EstimatorConfig
     from imu_calib_ros.nodes.calibration import LIVE_BLOCK_CHUNKS
     assert EstimatorConfig().block_chunks != LIVE_BLOCK_CHUNKS  # else this shows nothing
-    rclpy.init(args=['x'])
+    rclpy.init(args=['x', '--ros-args', '-p', 'fixture:=three_axis'])  # required
     try:
         node = Node('calibration_defaults')
         cfg = declare_config(node, CalibrationNodeConfig)
         assert cfg.estimator.block_chunks == LIVE_BLOCK_CHUNKS
-        assert cfg == CalibrationNodeConfig()
+        assert cfg == dataclasses.replace(CalibrationNodeConfig(), fixture='three_axis')
     finally:
         rclpy.try_shutdown()
 
@@ -49,12 +49,13 @@ def test_declared_defaults_are_the_dataclass_defaults_without_a_params_file() ->
 def test_parameters_declared_from_dataclass_with_descriptors() -> None:
     rclpy.init(args=['x', '--ros-args', '--params-file',
                      str(ROOT / 'config' / 'calibration_node.yaml'),
-                     '-p', 'estimator.noise_scale:=2.5', '-p', 'imu_rate_hz:=1000.0'])
+                     '-p', 'estimator.noise_scale:=2.5', '-p', 'imu_rate_hz:=1000.0',
+                     '-p', 'fixture:=three_axis'])
     try:
         node = Node('calibration')
         cfg = declare_config(node, CalibrationNodeConfig)
         assert cfg.imu_rate_hz == 1000.0 and cfg.estimator.noise_scale == 2.5
-        assert dataclasses.replace(cfg, imu_rate_hz=0.0, estimator=dataclasses.replace(
+        assert dataclasses.replace(cfg, imu_rate_hz=0.0, fixture='', estimator=dataclasses.replace(
             cfg.estimator, noise_scale=1.0)) == CalibrationNodeConfig()
         d = node.describe_parameter('estimator.gate_probability')
         assert d.description and d.floating_point_range[0].to_value == 1.0

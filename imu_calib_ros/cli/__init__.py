@@ -3,6 +3,9 @@
 Each sub-command module defines ``register(subparsers) -> None`` (adds its parser and sets
 ``func=run``) and ``run(args) -> int``. Errors derived from :class:`ImuCalibError` (and
 argparse usage errors) end the program with one line on stderr and exit status 2.
+``python -m imu_calib_ros.cli`` is ``imu-calib``; ``python -m imu_calib_ros.cli.replay ...`` is
+``imu-calib replay ...`` (each sub-command module). Start-up stays light (``--help`` imports
+no numpy/scipy): sub-command modules import the core inside ``run``.
 """
 from __future__ import annotations
 
@@ -16,14 +19,58 @@ from ..core.errors import ImuCalibError, InputError
 
 SUBCOMMANDS = ('simulate', 'replay', 'report', 'modulate')
 
+#: Where "CONTRACT n" in the help texts points (the external contract, in the repository).
+CONTRACT_NOTE = ('"CONTRACT n" is section n of the external contract: docs/CONTRACT.md in the '
+                 'source tree (installed as share/imu_calib_ros/docs/CONTRACT.md).')
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: the package version, read only when asked (one source: package.xml)."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=default, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        from .. import __version__
+        print(f'{parser.prog} {__version__}')
+        parser.exit()
+
+
+def absolute_topic(name: str) -> str:
+    """A topic name from the command line as a bag stores it: absolute.
+
+    ROS 2 bags record fully qualified names (``/imu/data_raw``); a name given without the
+    leading slash (``imu/data_raw``) is the same topic in the root namespace.
+    """
+    return name if not name or name.startswith('/') else f'/{name}'
+
+
+def add_topic_arguments(parser: argparse.ArgumentParser, what: str = 'read from') -> None:
+    """``--imu-topic`` and ``--joint-topic`` with their help (``what``: read from / write to)."""
+    parser.add_argument('--imu-topic', default='/imu/data_raw', metavar='T', type=absolute_topic,
+                        help=f'sensor_msgs/Imu topic to {what} the bag (default /imu/data_raw; '
+                             'a name without the leading slash means the same topic)')
+    parser.add_argument('--joint-topic', default='/joint_states', metavar='T',
+                        type=absolute_topic,
+                        help=f'sensor_msgs/JointState topic to {what} the bag (default '
+                             '/joint_states; a name without the leading slash means the same '
+                             'topic)')
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with every sub-command."""
     parser = argparse.ArgumentParser(
-        prog='imu-calib', description='Turntable IMU calibration (imu_calib_ros).')
+        prog='imu-calib', description='Turntable IMU calibration (imu_calib_ros).',
+        epilog=CONTRACT_NOTE)
+    parser.add_argument('--version', action=_VersionAction,
+                        help='print the version and exit (CONTRACT 5)')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name in SUBCOMMANDS:
         importlib.import_module(f'{__name__}.{name}').register(sub)
+    for p in sub.choices.values():
+        p.epilog = p.epilog or CONTRACT_NOTE
     return parser
 
 

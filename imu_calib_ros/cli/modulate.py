@@ -8,24 +8,26 @@ from __future__ import annotations
 import argparse
 
 from ..core.errors import InputError
-from ..core.fixture import load_fixture
-from ..core.methods.modulation import demodulate
+from . import add_topic_arguments
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add the ``modulate`` sub-command."""
     p = sub.add_parser('modulate', help='rotation modulation: body-frame IMU stream to a bag')
-    p.add_argument('bag', help='input bag (directory or .mcap)')
-    p.add_argument('--fixture', required=True, help='fixture YAML (CONTRACT 2)')
-    p.add_argument('--output', required=True, help='output bag path')
+    p.add_argument('bag', metavar='BAG', help='input bag (directory or .mcap)')
+    p.add_argument('--fixture', required=True, metavar='F',
+                   help='fixture name or YAML path (CONTRACT 2)')
+    p.add_argument('--output', required=True, metavar='OUT_BAG', help='output bag path')
     p.add_argument('--mode', choices=('one', 'two', 'four', 'continuous'),
-                   default='continuous')
+                   default='continuous',
+                   help='continuous (default): every IMU sample, de-rotated, with the bias '
+                        'of the revolution around it removed; one, two, four: the paper\'s '
+                        'control-point variants, 1, 2 or 4 outputs per revolution')
     p.add_argument('--joint', default=None, help='modulation joint (default: the one that '
                    'turns most)')
     p.add_argument('--causal', action='store_true',
                    help='continuous mode: bias from the preceding revolution only')
-    p.add_argument('--imu-topic', default='/imu/data_raw')
-    p.add_argument('--joint-topic', default='/joint_states')
+    add_topic_arguments(p, 'read from (and write to)')
     p.add_argument('--force', '--overwrite', dest='overwrite', action='store_true',
                    help='replace an existing output (as simulate --force)')
     p.set_defaults(func=run)
@@ -33,6 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def run(args: argparse.Namespace) -> int:
     """Read, demodulate, write."""
+    from ..core.fixture import load_fixture
+    from ..core.methods.modulation import demodulate
     from ..msg_adapters.bag import read_bag, write_bag
     fixture = load_fixture(args.fixture)
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
@@ -46,3 +50,10 @@ def run(args: argparse.Namespace) -> int:
               joint_topic=args.joint_topic, overwrite=args.overwrite)
     print(f'wrote {len(out)} body-frame samples ({args.mode}) to {args.output}')
     return 0
+
+
+if __name__ == '__main__':  # python -m imu_calib_ros.cli.modulate ... = imu-calib modulate ...
+    import sys
+
+    from . import main
+    sys.exit(main(['modulate', *sys.argv[1:]]))

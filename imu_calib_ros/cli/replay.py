@@ -13,11 +13,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..core.errors import InputError
-from . import check_output_file
 from ..core.units import ENGINEERING
+from . import add_topic_arguments, check_output_file
 
 METHODS = ('ekf', 'srt', 'oscillation')
 UNITS = tuple((key, 1.0 / si, unit) for key, (_, si, unit) in ENGINEERING.items())
@@ -31,8 +29,7 @@ def register(subparsers: Any) -> None:
     p.add_argument('--fixture', required=True, metavar='F', help='fixture name or YAML path')
     p.add_argument('--output', '-o', required=True, metavar='CALIB.yaml',
                    help='calibration file to write (CONTRACT 4)')
-    p.add_argument('--imu-topic', default='/imu/data_raw', metavar='T')
-    p.add_argument('--joint-topic', default='/joint_states', metavar='T')
+    add_topic_arguments(p)
     p.add_argument('--imu', default=None, metavar='GRADE',
                    help='optional IMU grade hint (name or path): its sigmas become prior '
                         'floors; the noise, the start point and the priors come from the data '
@@ -51,6 +48,7 @@ def register(subparsers: Any) -> None:
 
 
 def _summary(calib: Any) -> str:
+    import numpy as np
     d = calib.to_dict()['imu_calibration']
     lines = [f'{"parameter":34s} {"value":>30s}   {"sigma":>30s}  unit']
     for key, k, unit in UNITS:
@@ -131,3 +129,10 @@ def run(args: Any) -> int:
         print(_summary(calib))
         print(f'wrote {out}')
     return 0
+
+
+if __name__ == '__main__':  # python -m imu_calib_ros.cli.replay ... = imu-calib replay ...
+    import sys
+
+    from . import main
+    sys.exit(main(['replay', *sys.argv[1:]]))

@@ -9,16 +9,25 @@ from typing import Any
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add the ``report`` sub-command."""
-    p = sub.add_parser('report', help='self-contained HTML report of calibration results')
-    p.add_argument('calib', help='calibration file (CONTRACT 4)')
-    p.add_argument('--bag', default=None,
+    from . import add_topic_arguments
+    p = sub.add_parser(
+        'report', help='self-contained HTML report of calibration results',
+        description='Write one self-contained HTML page (plots embedded) with the values and '
+                    'one-sigma uncertainties of a calibration file, optionally against a '
+                    'truth file, other calibrations, and the velocity error of navigating a '
+                    'bag with the calibration applied.')
+    p.add_argument('calib', metavar='CALIB.yaml', help='calibration file (CONTRACT 4)')
+    p.add_argument('--bag', default=None, metavar='BAG',
                    help='bag to navigate with the calibration applied (needs --fixture)')
-    p.add_argument('--fixture', default=None, help='fixture YAML (for --bag)')
-    p.add_argument('--truth', default=None, help='truth file (simulator) for error columns')
-    p.add_argument('--compare', nargs='*', default=[], help='other calibration files')
-    p.add_argument('--output', default='report.html')
-    p.add_argument('--imu-topic', default='/imu/data_raw')
-    p.add_argument('--joint-topic', default='/joint_states')
+    p.add_argument('--fixture', default=None, metavar='F',
+                   help='fixture name or YAML path (CONTRACT 2), for --bag')
+    p.add_argument('--truth', default=None, metavar='T.yaml',
+                   help='truth file (imu-calib simulate) for error columns')
+    p.add_argument('--compare', nargs='*', default=[], metavar='O.yaml',
+                   help='other calibration files to show next to CALIB.yaml')
+    p.add_argument('--output', '-o', default='report.html', metavar='REPORT.html',
+                   help='HTML file to write (default report.html in the current directory)')
+    add_topic_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -115,3 +124,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'--output {out}: cannot write ({exc.strerror})') from None
     print(f'wrote {out}')
     return 0
+
+
+if __name__ == '__main__':  # python -m imu_calib_ros.cli.report ... = imu-calib report ...
+    import sys
+
+    from . import main
+    sys.exit(main(['report', *sys.argv[1:]]))

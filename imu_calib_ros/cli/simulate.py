@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import ConfigError, InputError
+from . import add_topic_arguments
 
 IMU_RATE_MAX_HZ = 100_000.0
 
@@ -53,10 +54,7 @@ def register(subparsers: Any) -> None:
                    help='no random noise (white noise, bias drift, encoder noise)')
     p.add_argument('--no-errors', action='store_true',
                    help='an error-free IMU (all constant sensor errors zero)')
-    p.add_argument('--imu-topic', default='/imu/data_raw', metavar='T',
-                   help='IMU topic (default /imu/data_raw)')
-    p.add_argument('--joint-topic', default='/joint_states', metavar='T',
-                   help='joint-state topic (default /joint_states)')
+    add_topic_arguments(p, 'write to')
     p.add_argument('--frame-id', default='imu_link', metavar='F',
                    help='IMU header.frame_id and calibration frame_id (default imu_link)')
     p.add_argument('--truth', default=None, metavar='PATH',
@@ -130,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.frame_id:
         raise ConfigError('must not be empty', 'argument --frame-id')
     for topic, opt in ((args.imu_topic, '--imu-topic'), (args.joint_topic, '--joint-topic')):
-        if not topic or not (topic.startswith('/') or topic[0].isalpha()) or ' ' in topic:
+        if not topic.startswith('/') or not topic[1:2].isalpha() or ' ' in topic:
             raise ConfigError(f'not a valid topic name: {topic!r}', f'argument {opt}')
     if args.imu_topic == args.joint_topic:
         raise ConfigError('the IMU and joint topics must differ', 'argument --joint-topic')
@@ -211,3 +209,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 __all__ = ['register', 'run', 'truth_path_for']
+
+
+if __name__ == '__main__':  # python -m imu_calib_ros.cli.simulate ... = imu-calib simulate ...
+    import sys
+
+    from . import main
+    sys.exit(main(['simulate', *sys.argv[1:]]))

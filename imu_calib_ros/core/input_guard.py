@@ -43,7 +43,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,7 +54,8 @@ from .earth import EARTH_RATE_RAD_S
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-__all__ = ['GuardConfig', 'ImuVerdict', 'InputGuard', 'IMU_REASONS', 'JOINT_REASONS']
+__all__ = ['GuardConfig', 'ImuVerdict', 'InputGuard', 'IMU_REASONS', 'JOINT_REASONS',
+           'rejection_counts']
 
 IMU_REASONS = ('duplicate_stamp', 'out_of_order', 'time_jump_backward', 'frame_id', 'non_finite',
                'all_zero', 'saturated', 'accel_units_g', 'accel_magnitude', 'gyro_units_deg',
@@ -64,6 +65,22 @@ JOINT_REASONS = ('joint_missing_names', 'joint_non_finite', 'joint_duplicate_sta
 RAD_PER_DEG = math.pi / 180.0
 PEND_MAX = 8193  # newest accepted joint samples kept for the encoder rates
 _LOG = logging.getLogger('imu_calib_ros.input')
+
+
+def rejection_counts(guard: Mapping[str, int] | None,
+                     before_guard: Mapping[str, int] | None = None) -> dict[str, int]:
+    """Rejected input by reason, each sample once, for reports: ``{'<source>.<reason>': n}``.
+
+    The guard owns the counts of the samples it saw (:attr:`InputGuard.rejected`, in an
+    estimator's ``health()['rejected']``): labelled ``guard.<reason>``. ``before_guard``
+    holds what a caller dropped before the guard ever saw it (a node's own checks: never in
+    the guard's counts), labelled ``node.<reason>``. Zero counters are left out. Not
+    rejections, so never here: the ``flagged`` gaps (accepted samples), the filter's gate
+    (measurement updates, not input samples), and counters derived from the guard's.
+    """
+    out = {f'node.{k}': int(v) for k, v in (before_guard or {}).items() if v}
+    out.update({f'guard.{k}': int(v) for k, v in (guard or {}).items() if v})
+    return out
 
 
 @dataclass(frozen=True)

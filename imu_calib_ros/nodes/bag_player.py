@@ -25,26 +25,30 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 
+from ..cli import absolute_topic
 from ..core.errors import ImuCalibError
 from ..core.types import ImuSample
 from ..msg_adapters.bag import DEFAULT_IMU_TOPIC, DEFAULT_JOINT_TOPIC, iter_bag
 from ..msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample, \
     time_msg_from_ns
-from .common import declare_config, reliable_qos
+from .common import (Endpoint, NodeInterface, declare_config, print_help_if_asked,
+                     reliable_qos)
 
 
 @dataclass(frozen=True)
 class BagPlayerConfig:
     """Parameters of the ``bag_player`` node."""
 
-    bag: str = field(default='', metadata={'doc': 'bag directory or .mcap file to play'})
+    bag: str = field(default='', metadata={'doc': 'bag directory or .mcap file to play',
+                                           'required': True})
     rate: float = field(default=1.0, metadata={'doc': 'speed factor (2.0 = twice real time)',
                                                'min': 0.01, 'max': 1000.0})
     loop: bool = field(default=False, metadata={'doc': 'play again from the start at the end'})
-    bag_imu_topic: str = field(default=DEFAULT_IMU_TOPIC,
-                               metadata={'doc': 'IMU topic in the bag'})
-    bag_joint_topic: str = field(default=DEFAULT_JOINT_TOPIC,
-                                 metadata={'doc': 'joint-state topic in the bag'})
+    bag_imu_topic: str = field(default=DEFAULT_IMU_TOPIC, metadata={
+        'doc': 'IMU topic in the bag (a name without the leading slash means the same topic)'})
+    bag_joint_topic: str = field(default=DEFAULT_JOINT_TOPIC, metadata={
+        'doc': 'joint-state topic in the bag (a name without the leading slash means the '
+               'same topic)'})
     wait_for_subscribers: int = field(default=0, metadata={
         'doc': 'IMU subscribers to wait for before playing', 'min': 0, 'max': 100})
     wait_timeout_s: float = field(default=10.0, metadata={
@@ -59,8 +63,6 @@ class BagPlayer(Node):
     def __init__(self) -> None:
         super().__init__('bag_player')
         self.cfg: BagPlayerConfig = declare_config(self, BagPlayerConfig)
-        if not self.cfg.bag:
-            raise ImuCalibError('parameter bag is required (-p bag:=PATH)')
         qos = reliable_qos(depth=1000)
         self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos)
         self._joint_pub = self.create_publisher(JointState, 'joint_states', qos)
@@ -84,7 +86,8 @@ class BagPlayer(Node):
         t0_wall = time.monotonic()
         last_clock: int | None = None
         period_ns = int(self.cfg.clock_period_s * 1e9)
-        for sample in iter_bag(self.cfg.bag, self.cfg.bag_imu_topic, self.cfg.bag_joint_topic):
+        for sample in iter_bag(self.cfg.bag, absolute_topic(self.cfg.bag_imu_topic),
+                               absolute_topic(self.cfg.bag_joint_topic)):
             if not rclpy.ok():
                 return
             if t0_bag is None:
@@ -117,8 +120,21 @@ class BagPlayer(Node):
             self.play_once()
 
 
+INTERFACE = NodeInterface(
+    name='bag_player', config=BagPlayerConfig,
+    summary='Plays a ROS 2 bag\'s IMU and joint-state topics with their recorded stamps and '
+            '/clock, paced at rate x the recorded time (the stand-in for ros2 bag play --clock '
+            'where ros2cli is missing). Exits 0 at the end of the bag.',
+    publishes=(
+        Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu', 'the bag\'s bag_imu_topic'),
+        Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'the bag\'s bag_joint_topic'),
+        Endpoint('/clock', 'rosgraph_msgs/msg/Clock', 'the recorded time')))
+
+
 def main(args: list[str] | None = None) -> int:
     """Console-script entry point (``bag_player --ros-args -p bag:=BAG -p rate:=2.0``)."""
+    if print_help_if_asked(INTERFACE, args):
+        return 0
     rclpy.init(args=args if args is not None else sys.argv)
     node: BagPlayer | None = None
     status = 0
@@ -133,7 +149,10 @@ def main(args: list[str] | None = None) -> int:
         status = 2
     finally:
         if node is not None:
-            node.get_logger().info(f'published {node.published} messages')
+            if status == 0:  # after an error the error line says it all
+                # print, not the logger: after a signal the context (and /rosout) is gone
+                print(f'bag_player: published {node.published} messages', file=sys.stderr,
+                      flush=True)
             node.destroy_node()
         rclpy.try_shutdown()
     return status

@@ -50,13 +50,16 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
+from ..core.diagnostics import frame_mismatch, health_values
 from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
+from ..core.input_guard import rejection_counts
 from ..core.types import JointSample
 from ..msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
                                     time_msg_from_ns)
-from .common import (InputThread, StreamCompensation, declare_config, diag9, finite,
-                     finite3, latched_qos, quiet_publisher, reliable_qos, run_node, sensor_qos)
+from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
+                     diag9, finite, finite3, latched_qos, quiet_publisher, reliable_qos,
+                     run_node, sensor_qos)
 from .estimator_runner import EstimatorRunner, Snapshot
 
 NODE_NAME = 'calibration'
@@ -92,8 +95,10 @@ LIVE_BLOCK_CHUNKS = 10
 class CalibrationNodeConfig:
     """Parameters of the calibration node (``config/calibration_node.yaml``)."""
 
-    fixture: str = field(default='three_axis', metadata={
-        'doc': 'fixture file (CONTRACT 2) or shipped fixture name'})
+    fixture: str = field(default='', metadata={
+        'doc': 'fixture file (CONTRACT 2) of the table in use, or a shipped fixture name '
+               '(three_axis, savage_2axis)',
+        'required': "a calibration against another table's kinematics is silently wrong"})
     imu_grade: str = field(default='', metadata={
         'doc': 'optional IMU grade hint (config/imus name or path): prior floors; empty = '
                'none, everything measured from the data (issue 11)'})
@@ -152,11 +157,6 @@ def _flat_items(prefix: str, value: Any) -> list[tuple[str, str]]:
     return [(prefix, str(value))]
 
 
-#: Estimator health() counters that count rejected or lost input (issue 6), by reason.
-ESTIMATOR_REJECT_KEYS = ('imu_out_of_order', 'imu_non_finite', 'joint_out_of_order',
-                         'joint_missing_names', 'joint_non_finite', 'gaps')
-
-
 class CalibrationNode(Node):
     """Live calibration: raw IMU + joint states in; corrected IMU, estimates, diagnostics out."""
 
@@ -193,6 +193,9 @@ class CalibrationNode(Node):
         self.rejected = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0, 'bad_message': 0,
                          'joint_names': 0, 'compensation_non_finite': 0}
         self._logged: dict[str, tuple[int, float]] = {}  # reason -> (count, monotonic time)
+        self._frame_seen = ''  # the last rejected header.frame_id
+        self._frame_mark = (0, 0)  # (imu, rejected frame_id) at the last diagnostics
+        self._frame_error = ''
         self._rate_mark: tuple[int, int, Any] = (0, 0, None)
         self._last_imu_ns: int | None = None
         self._first_imu_ns: int | None = None
@@ -239,6 +242,7 @@ class CalibrationNode(Node):
             return self._reject('bad_message')
         if frame != self.frame_id:
             if self.frame_id:
+                self._frame_seen = frame
                 return self._reject('frame_id')
             self.frame_id = frame
             self.runner.set_frame_id(frame)
@@ -361,18 +365,12 @@ class CalibrationNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def reasons(self, health: dict[str, Any]) -> dict[str, int]:
-        """Every rejection/loss counter by reason: node, estimator queue, estimator, gate."""
-        out = {f'node.{k}': v for k, v in self.rejected.items()}
-        out['node.missing_imu'] = self.counts['missing_imu']
-        out['node.estimator_queue_full'] = self.runner.dropped
-        for k in ESTIMATOR_REJECT_KEYS:
-            if isinstance(health.get(k), (int, float)):
-                out[f'estimator.{k}'] = int(health[k])
-        for k, v in dict(health.get('rejected_by_reason', {}) or {}).items():
-            out[f'estimator.{k}'] = int(v)
-        for k, v in dict(health.get('rejected', {}) or {}).items():
-            out[f'gate.{k}'] = int(v)
-        return out
+        """Rejected input by reason, each sample once (``core.input_guard.rejection_counts``):
+        ``node.*`` what this node dropped before the estimator (its input guard never sees
+        those), ``guard.*`` the input guard's own counts; non-zero only. Gaps (accepted
+        samples), gate rejections (measurement updates) and missing samples are not here."""
+        node = dict(self.rejected, estimator_queue_full=self.runner.dropped)
+        return rejection_counts(health.get('rejected'), node)
 
     def _log_reasons(self, reasons: dict[str, int]) -> None:
         """One throttled WARN line per reason whose counter grew."""
@@ -386,7 +384,7 @@ class CalibrationNode(Node):
 
     def _hint(self, reason: str) -> str:
         if reason == 'node.frame_id':
-            return f'; expected frame_id "{self.frame_id}"'
+            return f'; received "{self._frame_seen}", expected frame_id "{self.frame_id}"'
         if reason == 'node.joint_names':
             seen = getattr(self, '_joint_names_seen', ())
             return f'; expected joints {list(self.joint_names)}, got {list(seen)}'
@@ -394,6 +392,7 @@ class CalibrationNode(Node):
 
     def _on_diag_timer(self) -> None:
         self._hand_over()
+        self.runner.refresh_health()  # shown at the next period
         now = self.get_clock().now()
         snap = self.runner.latest
         health = dict(snap.health) if snap is not None else {}
@@ -401,7 +400,9 @@ class CalibrationNode(Node):
         last_imu, last_joint, last_t = self._rate_mark
         dt = (now - last_t).nanoseconds * 1e-9 if last_t is not None else 0.0
         self._rate_mark = (imu_n, joint_n, now)
-        values = {k: str(v) for k, v in self.counts.items()}
+        # totals always; the other counters only when not zero
+        values = {k: str(v) for k, v in self.counts.items()
+                  if v or k in ('imu', 'joint', 'published')}
         comp = self.compensation
         if comp.measured_period_s is not None:
             values['imu_rate_measured_hz'] = f'{1.0 / comp.measured_period_s:.6g}'
@@ -412,16 +413,27 @@ class CalibrationNode(Node):
             values['joint_rate_hz'] = f'{(joint_n - last_joint) / dt:.1f}'
         reasons = self.reasons(health)
         values.update({f'rejected.{k}': str(v) for k, v in reasons.items()})
-        values.update(_health_values(health))
+        values.update(health_values(health))
         values['estimator_alive'] = str(self.runner.alive)
+        self._check_frames(imu_n)
         level, message = self._level(now, imu_n, joint_n, reasons, snap)
-        self._log_reasons(reasons)
+        self._log_reasons({**reasons, 'node.missing_imu': self.counts['missing_imu']})
         status = DiagnosticStatus(name=f'{self.get_name()}: IMU calibration', level=level,
                                   message=message, hardware_id=self.frame_id)
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = now.to_msg()
         self._diag_pub.publish(arr)
+
+    def _check_frames(self, imu_n: int) -> None:
+        """ERROR while every IMU sample since the last diagnostics was rejected for its
+        frame (kept through periods without IMU input)."""
+        last_imu, last_frame = self._frame_mark
+        frame_n = self.rejected['frame_id']
+        self._frame_mark = (imu_n, frame_n)
+        if imu_n > last_imu:
+            self._frame_error = frame_mismatch(imu_n - last_imu, frame_n - last_frame,
+                                               self._frame_seen, self.frame_id)
 
     def _level(self, now: Any, imu_n: int, joint_n: int, reasons: dict[str, int],
                snap: Snapshot | None) -> tuple[bytes, str]:
@@ -435,6 +447,8 @@ class CalibrationNode(Node):
         if snap is not None and snap.diverged:
             return DiagnosticStatus.ERROR, ('estimator diverged: the corrected stream uses '
                                             'the last good calibration')
+        if self._frame_error:
+            return DiagnosticStatus.ERROR, self._frame_error
         expected = ', '.join(self.joint_names)
         if not self._joint_ok and self._first_imu_ns is not None and self._last_imu_ns and \
                 (self._last_imu_ns - self._first_imu_ns) * 1e-9 > self.config.joint_timeout_s:
@@ -453,8 +467,8 @@ class CalibrationNode(Node):
             return DiagnosticStatus.ERROR, snap.error
         if self.compensation.rate_mismatch:
             return DiagnosticStatus.WARN, self.compensation.rate_mismatch
-        bad = sum(reasons.values())
-        total = max(imu_n + joint_n, 1)
+        bad = sum(reasons.values()) + self.counts['missing_imu']
+        total = max(imu_n + joint_n + self.counts['missing_imu'], 1)
         if bad / total > self.config.warn_rejected_fraction:
             return DiagnosticStatus.WARN, f'{bad} of {total} inputs rejected or lost'
         if snap is not None and str(snap.health.get('status', '')).upper() == 'WARN':
@@ -520,23 +534,38 @@ class CalibrationNode(Node):
         super().destroy_node()
 
 
-def _health_values(health: dict[str, Any], prefix: str = 'estimator.') -> dict[str, str]:
-    """Flatten the estimator's health() into diagnostics key/values (no NaN strings)."""
-    out: dict[str, str] = {}
-    for k, v in health.items():
-        if isinstance(v, dict):
-            out.update(_health_values(v, f'{prefix}{k}.'))
-        elif isinstance(v, float):
-            out[f'{prefix}{k}'] = f'{v:.6g}' if math.isfinite(v) else 'not finite'
-        else:
-            out[f'{prefix}{k}'] = str(v)
-    return out
+INTERFACE = NodeInterface(
+    name=NODE_NAME, config=CalibrationNodeConfig, params_file='config/calibration_node.yaml',
+    summary='Live turntable calibration of an IMU: a strapdown navigator and an error EKF '
+            'estimate the sensor errors of CONTRACT 3 with one-sigma values from the raw IMU '
+            'and the table\'s joint states; the raw stream is republished corrected with the '
+            'latest good estimate.',
+    subscribes=(
+        Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu',
+                 'raw IMU, interval means (CONTRACT 1); sensor-data QoS'),
+        Endpoint('joint_states', 'sensor_msgs/msg/JointState',
+                 'positions of the fixture joints; sensor-data QoS'),
+        Endpoint('/clock', 'rosgraph_msgs/msg/Clock', 'with use_sim_time:=true')),
+    publishes=(
+        Endpoint('imu/data_corrected', 'sensor_msgs/msg/Imu',
+                 'every accepted raw sample, compensated, same stamp and frame'),
+        Endpoint('~/estimates', 'diagnostic_msgs/msg/DiagnosticArray',
+                 'every CONTRACT 4 value and its sigma, transient local'),
+        Endpoint('~/<group>, ~/<group>_sigma', 'geometry_msgs/msg/Vector3Stamped',
+                 'one pair per vector group (' + ', '.join(VECTOR_GROUPS) + '), transient '
+                 'local'),
+        Endpoint('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                 'input rates, rejections by reason, estimator health; OK/WARN/ERROR/STALE')),
+    services=(
+        Endpoint('~/save_calibration', 'std_srvs/srv/Trigger',
+                 'write the last good estimate to output_file (CONTRACT 4, atomic)'),
+        Endpoint('~/reset', 'std_srvs/srv/Trigger', 'restart the estimator')))
 
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``calibration``."""
     sys.setswitchinterval(0.0005)  # the IMU thread gets the GIL within 0.5 ms (default 5 ms)
-    return run_node(CalibrationNode, args)
+    return run_node(CalibrationNode, args, INTERFACE)
 
 
 if __name__ == '__main__':

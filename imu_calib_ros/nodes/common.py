@@ -8,13 +8,16 @@ the same code.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import os
 import signal
 import sys
+import textwrap
 import threading
 import types
 import typing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, TypeVar
 
@@ -146,36 +149,96 @@ def declare_config(node: Node, cls: type[T], prefix: str = '') -> T:
     field's ``metadata['doc']`` and range, so ``ros2 param describe`` shows them. The
     values (defaults, ``--params-file`` YAML, ``-p`` overrides) are then validated by
     :func:`imu_calib_ros.core.config.from_mapping`, the same check the YAML files get.
+    An integer given for a float field (``-p rate:=4``) is taken as that float.
 
     Raises
     ------
     ConfigError
-        A parameter has a wrong type or value (names the parameter).
+        A parameter has a wrong type or value (names the parameter); a parameter was given
+        (``-p``, ``--params-file``) that the node does not have (names the nearest one); a
+        field marked ``metadata['required']`` is empty (no silent default).
     """
-    return from_mapping(cls, _declare_mapping(node, cls, prefix), 'ROS parameters',
-                        prefix=prefix.rstrip('.'))
+    overrides = parameter_overrides(node)
+    config = from_mapping(cls, _declare_mapping(node, cls, prefix, overrides=overrides),
+                          'ROS parameters', prefix=prefix.rstrip('.'))
+    check_unknown_parameters(node, overrides)
+    _check_required(cls, config, prefix)
+    return config
 
 
-def _declare_mapping(node: Node, cls: type[Any], prefix: str,
-                     defaults: Any = None) -> dict[str, Any]:
-    """``defaults``: the parent's default instance of ``cls`` (a nested field's
-    ``default_factory`` may differ from ``cls()``), else each field's own default."""
+def parameter_overrides(node: Node) -> dict[str, Parameter]:
+    """The parameter values given to ``node`` from outside (``-p``, ``--params-file``,
+    ``parameter_overrides=``), by name, declared or not.
+
+    rclpy (Jazzy) keeps them in ``Node._parameter_overrides`` and has no public getter; the
+    one place this package reads that attribute.
+    """
+    return dict(getattr(node, '_parameter_overrides', {}) or {})
+
+
+def check_unknown_parameters(node: Node, overrides: Mapping[str, Parameter]) -> None:
+    """Refuse parameters the node has not declared (a misspelt ``-p fixtur:=...`` would
+    otherwise be ignored and the default used), naming the nearest declared name.
+
+    ``qos_overrides.*`` are rclpy's own (declared when a publisher or subscription with
+    QoS overriding options is created) and left to it.
+    """
+    unknown = [k for k in overrides
+               if not node.has_parameter(k) and not k.startswith('qos_overrides.')]
+    if not unknown:
+        return
+    names = sorted(node._parameters)  # noqa: SLF001 - rclpy has no list of declared names
+    hints = []
+    for k in unknown:
+        near = difflib.get_close_matches(k, names, n=1, cutoff=0.0)
+        hints.append(f'{k} (did you mean {near[0]}?)' if near else k)
+    what = 'unknown parameter' if len(unknown) == 1 else 'unknown parameters'
+    raise ConfigError(f'{what} {", ".join(hints)}; --help lists them', 'ROS parameters')
+
+
+def _check_required(cls: type[Any], config: Any, prefix: str) -> None:
+    """Fields with ``metadata['required']`` (True, or the reason) must be set (non-empty):
+    no silent default."""
+    for f in dataclasses.fields(cls):
+        if f.metadata.get('required') and getattr(config, f.name) in ('', None, ()):
+            name = f'{prefix}{f.name}'
+            why = f.metadata['required']
+            why = f' ({why})' if isinstance(why, str) else ''
+            raise ConfigError(f'{name} is required: set -p {name}:=VALUE, the '
+                              f'{f.metadata.get("doc", name)}; there is no default{why}',
+                              'ROS parameters')
+
+
+def _field_default(f: dataclasses.Field[Any], defaults: Any) -> Any:
+    """The default of field ``f``: from the parent's default instance if given (a nested
+    field's ``default_factory`` may differ from ``cls()``), else the field's own."""
+    return getattr(defaults, f.name) if defaults is not None else _default(f)
+
+
+def _declare_mapping(node: Node, cls: type[Any], prefix: str, defaults: Any = None,
+                     overrides: Mapping[str, Parameter] | None = None) -> dict[str, Any]:
+    """Declare ``cls``'s fields; the values as a nested mapping for ``from_mapping``."""
     hints = typing.get_type_hints(cls)
+    overrides = parameter_overrides(node) if overrides is None else overrides
     out: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         name = f'{prefix}{f.name}'
         tp = hints[f.name]
         base, optional = _strip_optional(tp)
-        default = getattr(defaults, f.name) if defaults is not None else _default(f)
+        default = _field_default(f, defaults)
         if dataclasses.is_dataclass(base):
-            out[f.name] = _declare_mapping(node, base, f'{name}.', default)
+            out[f.name] = _declare_mapping(node, base, f'{name}.', default, overrides)
             continue
         desc = _descriptor(f, tp, name)
         if isinstance(default, tuple):
             default = list(default)
         initial = _param_type(tp) if default in (None, []) else default
+        coerced = _int_as_float(overrides.get(name), _param_type(tp))
         try:
-            value = node.declare_parameter(name, initial, desc).value
+            if coerced is not None:
+                value = node.declare_parameter(name, coerced, desc, ignore_override=True).value
+            else:
+                value = node.declare_parameter(name, initial, desc).value
         except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
             reason = str(exc).split('Reason: ')[-1]
             raise ConfigError(f'invalid value ({reason})', 'ROS parameters', name) from None
@@ -186,6 +249,157 @@ def _declare_mapping(node: Node, cls: type[Any], prefix: str,
             value = list(value.tolist() if hasattr(value, 'tolist') else value)
         out[f.name] = value
     return out
+
+
+def _int_as_float(given: Parameter | None, wanted: Parameter.Type) -> Any:
+    """An integer (array) given for a double (array) parameter, as floats; else None.
+
+    ``-p rate:=4`` arrives as INTEGER; a statically typed DOUBLE parameter would refuse it
+    ("Wrong parameter type"), though 4 is a perfectly good rate.
+    """
+    if given is None:
+        return None
+    if wanted == Parameter.Type.DOUBLE and given.type_ == Parameter.Type.INTEGER:
+        return float(given.value)
+    if wanted == Parameter.Type.DOUBLE_ARRAY and given.type_ == Parameter.Type.INTEGER_ARRAY:
+        return [float(v) for v in given.value]
+    return None
+
+
+# ---------------------------------------------------------------------------------------------
+# --help: usage generated from the node's interface and its config dataclass
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """A topic or service of a node, for its ``--help``."""
+
+    name: str
+    type: str
+    doc: str = ''
+
+
+@dataclass(frozen=True)
+class NodeInterface:
+    """What a node does, subscribes, publishes and serves, and its config dataclass: the
+    ``--help`` text (:func:`node_usage`). The parameters are listed from ``config`` with the
+    descriptors :func:`declare_config` declares, so they cannot drift from the node."""
+
+    name: str
+    summary: str
+    config: type[Any]
+    subscribes: tuple[Endpoint, ...] = ()
+    publishes: tuple[Endpoint, ...] = ()
+    services: tuple[Endpoint, ...] = ()
+    params_file: str = ''  # e.g. config/calibration_node.yaml
+    notes: str = ''
+
+
+#: Where every node's --help sends the reader.
+DOCS_NOTE = ('Details: docs/NODES.md. "CONTRACT n" is section n of the external contract, '
+             'docs/CONTRACT.md (installed as share/imu_calib_ros/docs/CONTRACT.md).')
+
+_TYPE_NAMES = {Parameter.Type.BOOL: 'bool', Parameter.Type.INTEGER: 'integer',
+               Parameter.Type.DOUBLE: 'double', Parameter.Type.STRING: 'string',
+               Parameter.Type.BOOL_ARRAY: 'bool[]', Parameter.Type.INTEGER_ARRAY: 'integer[]',
+               Parameter.Type.DOUBLE_ARRAY: 'double[]', Parameter.Type.STRING_ARRAY: 'string[]'}
+
+
+def parameter_help(cls: type[Any], prefix: str = '', defaults: Any = None) -> list[str]:
+    """One entry per parameter :func:`declare_config` declares for ``cls``: name, type,
+    default (or ``required``), the descriptor's constraints, then its description."""
+    hints = typing.get_type_hints(cls)
+    lines: list[str] = []
+    for f in dataclasses.fields(cls):
+        name = f'{prefix}{f.name}'
+        tp = hints[f.name]
+        base, _ = _strip_optional(tp)
+        default = _field_default(f, defaults)
+        if dataclasses.is_dataclass(base):
+            lines += parameter_help(base, f'{name}.', default)
+            continue
+        desc = _descriptor(f, tp, name)
+        shown = 'required' if f.metadata.get('required') else f'default {_ros_text(default)}'
+        head = f'{name} ({_TYPE_NAMES[Parameter.Type(desc.type)]}, {shown}'
+        head += f'; {desc.additional_constraints})' if desc.additional_constraints else ')'
+        text = desc.description
+        if isinstance(f.metadata.get('required'), str):
+            text += f'; no default: {f.metadata["required"]}'
+        body = textwrap.fill(text, 99, initial_indent=' ' * 8, subsequent_indent=' ' * 8)
+        lines += [f'  {head}', body] if text else [f'  {head}']
+    return lines
+
+
+def _ros_text(value: Any) -> str:
+    """A default as it is written after ``-p NAME:=`` (YAML: true, 1.5, '', [1.0, 2.0])."""
+    if value is None or value == '':
+        return "''"
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (tuple, list)):
+        return '[' + ', '.join(_ros_text(v) for v in value) + ']'
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def node_usage(interface: NodeInterface, prog: str | None = None) -> str:
+    """The ``--help`` text of a node (see :class:`NodeInterface`)."""
+    prog = prog or interface.name
+    out = [f'usage: {prog} [-h] [--ros-args -p NAME:=VALUE ... -r FROM:=TO ... '
+           '--params-file FILE]', '', textwrap.fill(interface.summary, 99), '']
+    for title, items in (('subscribes', interface.subscribes),
+                         ('publishes', interface.publishes),
+                         ('services', interface.services)):
+        if not items:
+            continue
+        out.append(f'{title}:')
+        for e in items:
+            out.append(f'  {e.name} ({e.type})')
+            if e.doc:
+                out.append(textwrap.fill(e.doc, 99, initial_indent=' ' * 8,
+                                         subsequent_indent=' ' * 8))
+        out.append('')
+    src = f'; defaults in {interface.params_file}' if interface.params_file else ''
+    out.append(textwrap.fill(f'parameters (-p NAME:=VALUE or --params-file FILE{src}; an '
+                             'unknown name is refused):', 99))
+    out += parameter_help(interface.config)
+    out += ['  use_sim_time (bool, default false)',
+            '        ROS built-in: follow /clock instead of the system clock']
+    out.append('')
+    if interface.notes:
+        out += [textwrap.fill(interface.notes, 99), '']
+    out.append(textwrap.fill(DOCS_NOTE, 99))
+    return '\n'.join(out)
+
+
+def user_arguments(argv: list[str]) -> list[str]:
+    """``argv[1:]`` without the ROS arguments (``--ros-args ... [--]``, possibly several)."""
+    out: list[str] = []
+    in_ros = False
+    for a in argv[1:]:
+        if a == '--ros-args':
+            in_ros = True
+        elif in_ros and a == '--':
+            in_ros = False
+        elif not in_ros:
+            out.append(a)
+    return out
+
+
+def help_requested(argv: list[str]) -> bool:
+    """``-h`` or ``--help`` among the user arguments (not inside ``--ros-args``)."""
+    return any(a in ('-h', '--help') for a in user_arguments(argv))
+
+
+def print_help_if_asked(interface: NodeInterface, argv: list[str] | None) -> bool:
+    """Print the node's usage and return True when ``argv`` asks for help (nothing of ROS
+    is started: no ``rclpy.init``, no node)."""
+    argv = list(argv) if argv is not None else sys.argv
+    if not help_requested(argv):
+        return False
+    prog = os.path.basename(argv[0]) if argv and argv[0] and not argv[0].endswith('.py') \
+        else interface.name
+    print(node_usage(interface, prog))
+    return True
 
 
 def flatten_mapping(data: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -225,8 +439,23 @@ def load_params_file(path: str | Path, cls: type[T], node_name: str) -> T:
 # Start / stop
 
 
-def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> int:
+def log_at_exit(node: Node, message: str) -> None:
+    """Log ``message`` (INFO) while shutting down: through the node's logger while the
+    context is up, else on stderr (after SIGINT/SIGTERM the context is gone, and the logger's
+    /rosout publisher would add "Failed to publish log message to rosout")."""
+    if node.context.ok():
+        node.get_logger().info(message)
+    else:
+        print(f'{node.get_name()}: {message}', file=sys.stderr, flush=True)
+
+
+
+def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
+             interface: NodeInterface | None = None) -> int:
     """The Jazzy start/stop form around ``make_node()``; returns the exit status.
+
+    ``-h``/``--help`` (with ``interface``) prints the usage and returns 0 before anything of
+    ROS starts.
 
     Spins a SingleThreadedExecutor (rclpy's experimental C++ EventsExecutor delivered no
     callbacks at all in this Jazzy build; the MultiThreadedExecutor costs more per callback).
@@ -240,6 +469,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> in
     # e.g. half-way through building an executor Task ("Exception ignored in
     # Future.__del__ ... 'Task' object has no attribute '_exception'" at shutdown). A no-op
     # Python handler leaves the shutdown to rclpy alone.
+    if interface is not None and print_help_if_asked(interface, args):
+        return 0
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, lambda signum, frame: None)
     rclpy.init(args=args if args is not None else sys.argv)

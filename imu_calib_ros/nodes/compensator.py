@@ -22,8 +22,8 @@ from sensor_msgs.msg import Imu
 from ..core.calibration import CalibrationResult
 from ..core.errors import ConfigError, ImuCalibError
 from ..msg_adapters.convert import imu_cdr, imu_fields_from_cdr
-from .common import (InputThread, StreamCompensation, declare_config, diag9, finite3,
-                     quiet_publisher, reliable_qos, run_node, sensor_qos)
+from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
+                     diag9, finite3, quiet_publisher, reliable_qos, run_node, sensor_qos)
 
 NODE_NAME = 'compensator'
 
@@ -33,7 +33,7 @@ class CompensatorConfig:
     """Parameters of the compensator node (``config/compensator.yaml``)."""
 
     calibration_file: str = field(default='', metadata={
-        'doc': 'calibration file (CONTRACT 4) to apply; required'})
+        'doc': 'calibration file (CONTRACT 4) to apply', 'required': True})
     frame_id: str = field(default='', metadata={
         'doc': 'expected IMU frame; empty = the calibration file\'s frame_id'})
     imu_grade: str = field(default='', metadata={
@@ -71,9 +71,6 @@ class CompensatorNode(Node):
         super().__init__(NODE_NAME)
         self.config: CompensatorConfig = declare_config(self, CompensatorConfig)
         cfg = self.config
-        if not cfg.calibration_file:
-            raise ConfigError('set the calibration file: -p calibration_file:=PATH',
-                              'ROS parameters', 'calibration_file')
         self.calibration = CalibrationResult.load(cfg.calibration_file)
         if cfg.frame_id and cfg.frame_id != self.calibration.frame_id:
             raise ConfigError(f'calibration is for frame "{self.calibration.frame_id}", '
@@ -153,10 +150,23 @@ class CompensatorNode(Node):
         super().destroy_node()
 
 
+INTERFACE = NodeInterface(
+    name=NODE_NAME, config=CompensatorConfig, params_file='config/compensator.yaml',
+    summary='Robot-side deployment of a calibration: every raw IMU sample is corrected with '
+            'a calibration file (CONTRACT 4) and republished, with covariances from its sigmas '
+            'and the sensor noise. No estimator.',
+    subscribes=(Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu',
+                         'raw IMU, interval means (CONTRACT 1); sensor-data QoS'),),
+    publishes=(
+        Endpoint('imu/data_corrected', 'sensor_msgs/msg/Imu',
+                 'compensated, same stamp and frame, orientation_covariance[0] = -1'),
+        Endpoint('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                 'published and dropped samples by reason, measured IMU rate')))
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``compensator``."""
-    # sys.setswitchinterval(0.0005)
-    return run_node(CompensatorNode, args)
+    return run_node(CompensatorNode, args, INTERFACE)
 
 
 if __name__ == '__main__':

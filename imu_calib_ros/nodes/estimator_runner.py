@@ -114,6 +114,7 @@ class _Serve:
         self.error = ''
         self._chunks = -1
         self._health_t = 0.0
+        self._unposted = False  # input pushed since the last snapshot posted
 
     def push(self, items: list[Any]) -> None:
         """Push samples (already in stamp order) to the estimator, IMU runs as batches.
@@ -148,8 +149,9 @@ class _Serve:
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             self.error = f'estimator failed: {type(exc).__name__}: {exc}'
 
-    def snapshot(self, force: bool = False) -> None:
-        """Post a snapshot when a block ran (the estimate changed) or health is due."""
+    def snapshot(self, force: bool = False, health_now: bool = False) -> None:
+        """Post a snapshot when a block ran (the estimate changed) or health is due
+        (``health_now``: due now if input came since the last one posted)."""
         try:
             health = dict(self.est.health())
         except Exception as exc:  # noqa: BLE001 - report, never kill the worker
@@ -157,9 +159,12 @@ class _Serve:
         chunks = int(health.get('chunks', 0) or 0)
         now = time.monotonic()
         new_estimate = chunks != self._chunks
-        if not (force or new_estimate or now - self._health_t >= self.health_period_s):
+        due = now - self._health_t >= self.health_period_s or (health_now and self._unposted)
+        if not (force or new_estimate or due):
+            self._unposted = True
             return
         self._health_t = now
+        self._unposted = False
         result = None
         if force or new_estimate:
             self._chunks = chunks
@@ -177,6 +182,8 @@ class _Serve:
         if kind == 'data':
             self.push(msg[1])
             self.snapshot()
+        elif kind == 'health':  # the node's diagnostics: the counts of the last input too
+            self.snapshot(health_now=True)
         elif kind == 'frame_id':
             self.frame_id = msg[1]
         elif kind == 'reset':
@@ -353,6 +360,14 @@ class EstimatorRunner:
             self.dropped += sum(1 for s in items if not isinstance(s, JointSample))
             return False
         return True
+
+    def refresh_health(self) -> None:
+        """Ask for a health snapshot if input came since the last one (without it, the
+        counts of the last batches before the input stops would never be posted)."""
+        try:
+            self._in.put_nowait(('health',))
+        except queue.Full:
+            pass  # busy: snapshots come with the data
 
     def command(self, kind: str) -> None:
         """Send ``reset`` or ``reset_navigation`` without waiting (from a callback)."""

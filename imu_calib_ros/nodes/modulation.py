@@ -33,7 +33,8 @@ from ..core.errors import ConfigError
 from ..core.fixture import load_fixture
 from ..core.methods.modulation import MODES, StreamingDemodulator
 from ..msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
-from .common import declare_config, finite, reliable_qos, run_node, sensor_qos
+from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit, reliable_qos,
+                     run_node, sensor_qos)
 
 NODE_NAME = 'modulation'
 
@@ -43,7 +44,8 @@ class ModulationConfig:
     """Parameters of the modulation node."""
 
     fixture: str = field(default='', metadata={
-        'doc': 'fixture name or YAML path (CONTRACT 2): the modulation joint axis; required'})
+        'doc': 'fixture name or YAML path (CONTRACT 2): the modulation joint axis',
+        'required': True})
     joint: str = field(default='', metadata={
         'doc': 'modulation joint name; empty = the innermost joint'})
     mode: str = field(default='continuous', metadata={
@@ -63,9 +65,6 @@ class ModulationNode(Node):
         super().__init__(NODE_NAME)
         cfg: ModulationConfig = declare_config(self, ModulationConfig)
         self.config = cfg
-        if not cfg.fixture:
-            raise ConfigError('set the fixture: -p fixture:=NAME_OR_PATH', 'ROS parameters',
-                              'fixture')
         if cfg.mode != 'continuous' and cfg.mode not in MODES:
             raise ConfigError(f'mode must be continuous, one, two or four, got {cfg.mode!r}',
                               'ROS parameters', 'mode')
@@ -122,7 +121,7 @@ class ModulationNode(Node):
     def destroy_node(self) -> None:
         """Log the counters, then stop."""
         counters = self.demod.counters if self.demod is not None else {}
-        self.get_logger().info(f'counters: {counters}, rejected: {self.rejected}')
+        log_at_exit(self, f'counters: {counters}, rejected: {self.rejected}')
         super().destroy_node()
 
     def _publish(self, samples: list) -> None:
@@ -131,9 +130,22 @@ class ModulationNode(Node):
             self._pub.publish(imu_msg_from_sample(s, Imu, frame_id=fid))
 
 
+INTERFACE = NodeInterface(
+    name=NODE_NAME, config=ModulationConfig,
+    summary='Live rotation demodulation: the IMU stream of a unit turning on one joint, in the '
+            'platform-base frame with the modulated X/Y biases removed and the platform rate '
+            'taken out of the gyro (as imu-calib modulate --causal).',
+    subscribes=(
+        Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu', 'raw IMU; sensor-data QoS (override: '
+                 '-p qos_overrides./imu/data_raw.subscription.reliability:=reliable)'),
+        Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'fixture joint positions')),
+    publishes=(Endpoint('imu/data_body', 'sensor_msgs/msg/Imu',
+                        'body-frame stream (continuous, or 1/2/4 points per revolution)'),))
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``modulation``."""
-    return run_node(ModulationNode, args)
+    return run_node(ModulationNode, args, INTERFACE)
 
 
 if __name__ == '__main__':

@@ -35,7 +35,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from ..core.errors import ImuCalibError
 from ..core.types import FloatArray
 from ..msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
-from .common import declare_config, reliable_qos, run_node, sensor_qos
+from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
+                     sensor_qos)
 
 NODE_NAME = 'turntable_driver'
 
@@ -44,10 +45,13 @@ NODE_NAME = 'turntable_driver'
 class TurntableDriverConfig:
     """Parameters of the turntable driver node."""
 
-    fixture: str = field(default='three_axis', metadata={
-        'doc': 'fixture file (CONTRACT 2) or shipped fixture name (joint names and axes)'})
-    plan: str = field(default='demo_short', metadata={
-        'doc': 'motion plan (config/plans name or path)'})
+    fixture: str = field(default='', metadata={
+        'doc': 'fixture file (CONTRACT 2) of the table to drive, or a shipped fixture name '
+               '(joint names and axes)',
+        'required': "another table's joint names and axes would move this one"})
+    plan: str = field(default='', metadata={
+        'doc': 'motion plan (config/plans name, e.g. savage_srt, or path)',
+        'required': 'this node moves hardware'})
     point_period_s: float = field(default=0.05, metadata={
         'doc': 'largest time between trajectory points [s]', 'min': 0.001, 'max': 10.0})
     lead_in_s: float = field(default=0.5, metadata={
@@ -208,9 +212,24 @@ class TurntableDriverNode(Node):
                                f'{self._pub.topic_name}')
 
 
+INTERFACE = NodeInterface(
+    name=NODE_NAME, config=TurntableDriverConfig,
+    summary='Drives a real turntable through a motion plan: sends it as one JointTrajectory '
+            '(positions, velocities, accelerations) from where the table is, follows the joint '
+            'states, and exits 0 only if the table followed the plan.',
+    subscribes=(Endpoint('joint_states', 'sensor_msgs/msg/JointState',
+                         'where the table is, and how it follows'),),
+    publishes=(Endpoint('joint_trajectory', 'trajectory_msgs/msg/JointTrajectory',
+                        'the plan; remap to the controller, e.g. '
+                        '/joint_trajectory_controller/joint_trajectory'),),
+    notes='Exit status: 0 the table followed the plan; 1 tracking error above '
+          'max_tracking_error_deg, no joint state in the plan\'s window, or interrupted; '
+          '2 bad parameter or file.')
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``turntable_driver``."""
-    return run_node(TurntableDriverNode, args)
+    return run_node(TurntableDriverNode, args, INTERFACE)
 
 
 if __name__ == '__main__':

@@ -34,7 +34,8 @@ from trajectory_msgs.msg import JointTrajectory
 from ..core.errors import ConfigError, PlanError
 from ..core.types import FloatArray, ImuBatch, JointBatch
 from ..msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample
-from .common import declare_config, reliable_qos, run_node, time_msg_from_ns
+from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
+                     time_msg_from_ns)
 
 NODE_NAME = 'turntable_sim'
 
@@ -434,9 +435,22 @@ class TurntableSimNode(Node):
                     j += 1
 
 
+INTERFACE = NodeInterface(
+    name=NODE_NAME, config=TurntableSimConfig, params_file='config/turntable_sim.yaml',
+    summary='A simulated turntable with an IMU on it: runs a motion plan, or follows '
+            'JointTrajectory commands like a ros2_control joint trajectory controller, and '
+            'publishes the exact simulated IMU and joint states with /clock. Moves no hardware.',
+    subscribes=(Endpoint('joint_trajectory', 'trajectory_msgs/msg/JointTrajectory',
+                         'commands, when no plan is given'),),
+    publishes=(
+        Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu', 'simulated raw IMU (CONTRACT 1)'),
+        Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'simulated encoders'),
+        Endpoint('/clock', 'rosgraph_msgs/msg/Clock', 'simulated time (publish_clock)')))
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``turntable_sim``."""
-    return run_node(TurntableSimNode, args)
+    return run_node(TurntableSimNode, args, INTERFACE)
 
 
 if __name__ == '__main__':
