@@ -200,6 +200,12 @@ class BatchReorder:
         self._held = np.zeros(0, bool)
 
     @property
+    def mark(self) -> int | None:
+        """The release mark: every later message is either stamped at or after it, or late
+        (None before the first message expired; reset by a backward jump)."""
+        return None if self._mark == _NONE else self._mark
+
+    @property
     def pending_ids(self) -> IntArray:
         """Ids of the messages held back (increasing)."""
         return self._id[self._held]
