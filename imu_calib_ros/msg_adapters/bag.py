@@ -473,10 +473,11 @@ def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAU
     and the window yields the joint states it releases first, then the IMU samples, as
     batches; IMU samples wait for the joint states stamped before them, so joint states
     arrive early, never late, relative to the IMU samples (the estimator buffers joint
-    states; its results do not depend on how far ahead they are). Where the fast path does not apply, messages are decoded
-    one by one and split into runs of one joint-name list / one IMU frame_id, so that
-    every sample keeps its own names and frame_id (as with :func:`iter_bag`). Memory: one
-    window of raw and decoded messages plus the reorder window.
+    states; its results do not depend on how far ahead they are). Where the fast path does
+    not apply, messages are decoded one by one and split into runs of one joint-name list /
+    one IMU frame_id, so that every sample keeps its own names and frame_id (as with
+    :func:`iter_bag`). Memory: one window of raw and decoded messages plus the reorder
+    window.
 
     ``reorder_stats``, if given, is cleared and filled with each topic's
     :class:`~imu_calib_ros.core.reorder.ReorderStats` (complete at the end).
