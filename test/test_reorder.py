@@ -123,7 +123,9 @@ def test_release_lets_messages_out_when_the_stream_pauses() -> None:
     assert buf.push(T0 + 2 * MS, 'b', 0) == []
     assert buf.push(T0 + 1 * MS, 'a', 1 * MS) == []
     assert buf.release(5 * MS) == [] and len(buf) == 2
-    assert buf.release(6 * MS + 1) == [(T0 + MS, 'a'), (T0 + 2 * MS, 'b')]
+    assert buf.due_ns() == 5 * MS + 1  # 'b' has waited its window: 'a' goes with it
+    assert buf.release(5 * MS + 1) == [(T0 + MS, 'a'), (T0 + 2 * MS, 'b')]
+    assert buf.due_ns() is None
     assert buf.push(T0 + 1 * MS, 'late', 7 * MS) == [(T0 + MS, 'late')]
     assert buf.stats == ReorderStats(3, 1, 1, 0, MS)
     buf.push(T0 + 3 * MS, 'c', 8 * MS)

@@ -148,6 +148,13 @@ class ReorderBuffer(Generic[T]):
         self._expire(clock_ns)
         return self._emit()
 
+    def due_ns(self) -> int | None:
+        """The arrival clock at which :meth:`release` may let a message out (None: nothing
+        held): when the stream pauses, call :meth:`release` then."""
+        if not self._heap or not self._arrivals:
+            return None
+        return self._arrivals[0][0] + self.window_ns + 1
+
     def flush(self) -> list[tuple[int, T]]:
         """Every held message, in order (end of the stream, a save)."""
         out = [(s, item) for s, _, item in sorted(self._heap, key=lambda h: h[:2])]
