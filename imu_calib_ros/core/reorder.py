@@ -88,8 +88,8 @@ class ReorderBuffer(Generic[T]):
     Parameters
     ----------
     window_s:
-        Longest wait of a message [s of the arrival clock]; 0 releases a message as soon as
-        the clock moves on.
+        Longest wait of a message [s of the arrival clock]; 0 passes every message on at
+        once (the arrival order; the counts still say what was out of order).
     jump_s:
         Backward step in stamps that starts a new epoch; default ``max(window_s, 1 s)``.
 
@@ -140,6 +140,7 @@ class ReorderBuffer(Generic[T]):
         self._seq += 1
         heapq.heappush(self._heap, (stamp_ns, self._seq, item))
         self._arrivals.append((self._clock, stamp_ns))
+        self._expire(clock_ns)  # itself, with a zero window
         out += self._emit()
         return out
 
@@ -153,7 +154,7 @@ class ReorderBuffer(Generic[T]):
         held): when the stream pauses, call :meth:`release` then."""
         if not self._heap or not self._arrivals:
             return None
-        return self._arrivals[0][0] + self.window_ns + 1
+        return self._arrivals[0][0] + self.window_ns
 
     def flush(self) -> list[tuple[int, T]]:
         """Every held message, in order (end of the stream, a save)."""
@@ -167,7 +168,7 @@ class ReorderBuffer(Generic[T]):
         self._clock = clock = max(self._clock, int(clock_ns))
         arrivals, limit = self._arrivals, clock - self.window_ns
         mark = self._mark
-        while arrivals and arrivals[0][0] < limit:
+        while arrivals and arrivals[0][0] <= limit:
             mark = max(mark, arrivals.popleft()[1])
         self._mark = mark
 
@@ -268,7 +269,9 @@ class BatchReorder:
         S = np.concatenate([self._s, s])
         C = np.concatenate([self._c, c])
         # the release mark at each arrival: newest stamp of the messages expired by then
-        expired = np.searchsorted(C, c - self.window_ns, side='left')
+        # (arrived by then: with a zero window, itself but none of equal clock after it)
+        expired = np.minimum(np.searchsorted(C, c - self.window_ns, side='right'),
+                             m0 + 1 + np.arange(n))
         newest_all = np.maximum.accumulate(S)
         mark = np.where(expired > 0, newest_all[np.maximum(expired - 1, 0)], _NONE)
         mark = np.maximum(mark, self._mark)
@@ -297,7 +300,7 @@ class BatchReorder:
         held_old[np.flatnonzero(self._held)[rel_old]] = False
         held = np.concatenate([held_old, ~late & ~rel_new])
         keep = np.concatenate([np.ones(m0, bool), ~late]) & (
-            (C >= C[-1] - self.window_ns) | held)
+            (C > C[-1] - self.window_ns) | held)
         self._s, self._c = S[keep], C[keep]
         self._id = np.concatenate([self._id, ids])[keep]
         self._held = held[keep]
