@@ -289,12 +289,17 @@ class BatchReorder:
         at_new[late] = arrive[late]
         rel_old = at_old < n
         rel_new = at_new < n
-        a = np.concatenate([at_old[rel_old], at_new[rel_new]])
-        flag = np.concatenate([np.zeros(int(rel_old.sum()), np.int8),
-                               late[rel_new].astype(np.int8)])
-        stamp = np.concatenate([self._s[self._held][rel_old], s[rel_new]])
-        rid = np.concatenate([self._id[self._held][rel_old], ids[rel_new]])
-        released = rid[np.lexsort((rid, stamp, flag, a))]
+        # the released messages that are on time come out in (stamp, id) order (a stable
+        # sort of id-ordered arrays; their release arrivals are then non-decreasing), each
+        # late one right after those released by its own arrival
+        on_time = rel_new & ~late
+        stamp = np.concatenate([self._s[self._held][rel_old], s[on_time]])
+        order = np.argsort(stamp, kind='stable')
+        released = np.concatenate([self._id[self._held][rel_old], ids[on_time]])[order]
+        if late.any():
+            at = np.concatenate([at_old[rel_old], at_new[on_time]])[order]
+            released = np.insert(released, np.searchsorted(at, np.flatnonzero(late), 'right'),
+                                 ids[late])
         # keep the not-late messages that may expire later, and every held one
         held_old = self._held.copy()
         held_old[np.flatnonzero(self._held)[rel_old]] = False

@@ -525,9 +525,10 @@ def _ordered_windows(p: Path, imu_topic: str | None, joint_topic: str | None,
         count = 0
         for conn, t_ns, raw in _raw_messages(reader, p, conns):
             topic = conn.topic
-            if not pending[topic]:
+            raws = pending[topic]
+            if not raws:
                 first[topic] = (conn, t_ns)
-            pending[topic].append(raw)
+            raws.append(raw)
             clocks[topic].append(t_ns)
             count += 1
             if count >= window_msgs:
@@ -697,14 +698,19 @@ def _take_parts(parts: list[Any], pos: NDArray[np.int64]) -> list[Any]:
     out = []
     for run_which, run in zip(np.split(which, cuts), np.split(local, cuts)):
         b = parts[int(run_which[0])]
-        if len(run) == len(b) and run[0] == 0 and np.all(np.diff(run) == 1):
-            out.append(b)
-        elif isinstance(b, ImuBatch):
-            out.append(ImuBatch(b.stamps_ns[run], b.gyro_rad_s[run], b.accel_m_s2[run],
+        lo, hi = int(run[0]), int(run[-1]) + 1
+        idx: Any = run
+        if hi - lo == len(run) and np.all(np.diff(run) == 1):  # a slice: views, no copy
+            if hi - lo == len(b):
+                out.append(b)
+                continue
+            idx = slice(lo, hi)
+        if isinstance(b, ImuBatch):
+            out.append(ImuBatch(b.stamps_ns[idx], b.gyro_rad_s[idx], b.accel_m_s2[idx],
                                 b.frame_id))
         else:
-            vel = None if b.velocities_rad_s is None else b.velocities_rad_s[run]
-            out.append(JointBatch(b.stamps_ns[run], b.names, b.positions_rad[run], vel))
+            vel = None if b.velocities_rad_s is None else b.velocities_rad_s[idx]
+            out.append(JointBatch(b.stamps_ns[idx], b.names, b.positions_rad[idx], vel))
     return out
 
 
