@@ -255,3 +255,16 @@ def test_replay_of_a_receipt_jitter_bag_equals_the_stamp_ordered_one(
     print(f'largest difference from the ordered bag: {z.max():.3g} sigma; in log order '
           f'{z0.max():.3g} sigma')
     assert z0.max() > 0.1, z0.max()
+
+
+@pytest.mark.parametrize('window', ['-1', 'nan', 'inf'])
+def test_replay_refuses_a_bad_reorder_window(jitter_bag: tuple[Path, dict[str, list]],
+                                             tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                             window: str) -> None:
+    from imu_calib_ros.cli import main
+    out = tmp_path / 'c.yaml'
+    assert main(['replay', str(jitter_bag[0]), '--fixture', 'three_axis', '--output',
+                 str(out), '--quiet', '--reorder-window', window]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and 'reorder window' in err, err
+    assert not out.exists()

@@ -25,8 +25,9 @@ diagnostics follow ``/clock``; a backward jump of ``/clock`` (a looping bag) res
 estimator's navigation (rclpy jump callback); the estimator itself only sees message stamps.
 
 Threads: the raw IMU is served by its own thread
-(:class:`~imu_calib_ros.nodes.common.InputThread`: serialised bytes in, checked, compensated
-and published as bytes at once, tens of microseconds), which queues the sample; the rest
+(:class:`~imu_calib_ros.nodes.common.InputThread`: serialised bytes in, checked, put back in
+stamp order within ``reorder_window_s`` (:mod:`imu_calib_ros.core.reorder`, issue 17),
+compensated and published as bytes, tens of microseconds), which queues the sample; the rest
 spins in a SingleThreadedExecutor, where a 20 Hz timer hands the queue to an
 :class:`~imu_calib_ros.nodes.estimator_runner.EstimatorRunner` (a child process by default,
 or a thread), whose bounded queue drops and counts under overload. Faults (issue 6): see
