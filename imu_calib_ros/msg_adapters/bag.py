@@ -855,12 +855,14 @@ def read_bag(path: str | os.PathLike[str], imu_topic: str = DEFAULT_IMU_TOPIC,
         clocks: dict[str, list[int]] = {t: [] for t in wanted}
         first: dict[str, tuple[Any, int]] = {}
         for conn, t_ns, raw in _raw_messages(reader, p, conns):
-            if conn.topic not in first or not pending[conn.topic]:
-                first[conn.topic] = (conn, t_ns)
-            pending[conn.topic].append(raw)
-            clocks[conn.topic].append(t_ns)
-            if len(pending[conn.topic]) >= READ_CHUNK_MSGS:
-                flush(conn.topic)
+            topic = conn.topic
+            raws = pending[topic]
+            if not raws:
+                first[topic] = (conn, t_ns)
+            raws.append(raw)
+            clocks[topic].append(t_ns)
+            if len(raws) >= READ_CHUNK_MSGS:
+                flush(topic)
         for topic in wanted:
             flush(topic)
             keep(topic, orders[topic].flush())
