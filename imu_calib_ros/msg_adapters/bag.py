@@ -369,9 +369,10 @@ def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_T
     Yields
     ------
     ImuSample | JointSample
-        Stamped with the header stamp; each topic in stamp order (messages later than the
-        window, duplicates and backward jumps stay where they are: the estimator counts
-        them), the two topics merged by stamp, IMU first on equal stamps.
+        Stamped with the header stamp; each topic in stamp order (a message later than the
+        window stays where it arrived, duplicates stay next to each other, a backward jump
+        stays as recorded: the estimator counts them), the two topics merged by stamp, IMU
+        first on equal stamps.
         Values are not checked (NaN passes through: the estimator rejects it).
         The returned iterator also has :meth:`BagSamples.batches` (the same data as
         :func:`iter_bag_batches`), which replay uses to skip the per-sample objects, and
@@ -381,6 +382,8 @@ def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_T
     ------
     BagError
         Missing path, not a bag, empty bag, missing topic, wrong type, corrupt data.
+    InputError
+        A negative or non-finite ``reorder_window_s`` (at once).
     """
     return BagSamples(Path(path), imu_topic, joint_topic, reorder_window_s)
 
