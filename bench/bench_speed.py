@@ -3,6 +3,7 @@
     python bench/bench_speed.py [--minutes 60] [--rate 200] [--batch 4000] [--no-joints]
                                 [--tracemalloc]
     python bench/bench_speed.py --bag [--minutes 60] [--rate 200] [--passes 1,cli,2]
+    python bench/bench_speed.py --reader [--minutes 5]
 
 Simulates the ``demo_short`` plan, closed into a loop, once (nav grade, three-axis fixture)
 and replays it again and again with shifted stamps until ``minutes`` of data have gone through
@@ -26,6 +27,12 @@ the way ``imu-calib replay`` does it: first one pass of ``replay.replay`` over
 samples/s, RSS sampled during the replay (after 10 % of the bag and at the end: it must not
 grow with the bag's length), the peak RSS of the process, and a SUMMARY line per run against
 the 20 s target.
+
+``--reader`` (issue 17): the bag reader alone on a 2 kHz bag (IMU 2 kHz, joint states 100
+Hz, cached in ``/tmp``), written twice: log time = header stamp (``write_bag``), and as
+rosbag2 records, log time = stamp + 1.5..2.5 ms (12.6 % of the IMU messages behind a newer
+stamp). Prints the CPU time of ``read_bag``, ``iter_bag(bag).batches()`` (what replay reads)
+and ``iter_bag`` sample by sample on each, in messages per second, with the reorder counts.
 """
 from __future__ import annotations
 
@@ -222,6 +229,62 @@ def bench_bag(a: Any, fx: Any, grade: Any, sim: Any, reps: int) -> None:
               f'pushed), wall {wall:.1f} s')
 
 
+def reader_bags(minutes: float) -> tuple[Path, Path]:
+    """The ordered and the receipt-jitter 2 kHz bags of ``--reader`` (cached in /tmp)."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+    from imu_calib_ros.msg_adapters import bag as bagmod
+    d = Path(tempfile.gettempdir()) / f'imu_calib_bench_reader_{minutes:g}min'
+    ordered, jittered = d / 'ordered.mcap', d / 'rosbag2_like.mcap'
+    if ordered.exists() and jittered.exists():
+        return ordered, jittered
+    d.mkdir(exist_ok=True)
+    rng = np.random.default_rng(0)
+    n, nj = int(minutes * 60 * 2000), int(minutes * 60 * 100)
+    t0 = 1_700_000_000_000_000_000
+    imu = ImuBatch(t0 + 500_000 * np.arange(1, n + 1, dtype=np.int64),
+                   rng.normal(0, 1e-3, (n, 3)), rng.normal([0, 0, 9.8], 1e-3, (n, 3)),
+                   'imu_link')
+    joints = JointBatch(t0 + 10_000_000 * np.arange(1, nj + 1, dtype=np.int64),
+                        ('outer', 'middle', 'inner'), rng.uniform(-3, 3, (nj, 3)))
+    bagmod.write_bag(ordered, imu, joints, overwrite=True)
+    with Reader(ordered) as r:
+        msgs = [(c.topic, c.msgtype, t, bytes(raw)) for c, t, raw in r.messages()]
+    log = np.array([m[2] for m in msgs], np.int64) + rng.integers(1_500_000, 2_500_001,
+                                                                  len(msgs))
+    with tempfile.TemporaryDirectory(dir=d) as tmp:
+        w = Writer(Path(tmp) / 'b', version=9, storage_plugin=StoragePlugin.MCAP)
+        w.open()
+        conns = {topic: w.add_connection(topic, mt, typestore=bagmod._typestore())  # noqa
+                 for topic, mt in {(m[0], m[1]) for m in msgs}}
+        for k in np.argsort(log, kind='stable').tolist():
+            w.write(conns[msgs[k][0]], int(log[k]), msgs[k][3])
+        w.close()
+        os.rename(next((Path(tmp) / 'b').glob('*.mcap')), jittered)
+    return ordered, jittered
+
+
+def bench_reader(minutes: float) -> None:
+    """``--reader``: CPU time of the bag read paths on a 2 kHz bag, ordered and jittered."""
+    from imu_calib_ros.msg_adapters.bag import iter_bag, read_bag
+    for path in reader_bags(minutes):
+        for name, run in (('read_bag', lambda: len(read_bag(path)[0])),
+                          ('iter_bag().batches()',
+                           lambda: sum(len(b) for b in iter_bag(path).batches())),
+                          ('iter_bag (samples)', lambda: sum(1 for _ in iter_bag(path)))):
+            cpu = []
+            for _ in range(3):
+                c0 = time.process_time()
+                n = run()
+                cpu.append(time.process_time() - c0)
+            print(f'{path.name:18s} {name:22s} {n} msgs  cpu {min(cpu):6.2f} s (best of 3)  '
+                  f'{n / min(cpu):,.0f} msgs/s')
+        src = iter_bag(path)
+        for _ in src.batches():
+            pass
+        for topic, st in src.reorder_stats.items():
+            print(f'{path.name:18s} {topic}: {st.describe()}')
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--minutes', type=float, default=60.0, help='length of data to replay')
@@ -238,7 +301,13 @@ def main() -> None:
                     help="with --bag: comma-separated runs to time: '1' = replay.replay, one "
                          "pass (RSS sampled); 'cli' = the CLI with its defaults (one pass); "
                          "N > 1 = the CLI with --iterations N (default '1,cli')")
+    ap.add_argument('--reader', action='store_true',
+                    help='time the bag reader alone on a 2 kHz bag, log time = stamp and '
+                         'rosbag2-like (log time = receipt time); --minutes default 5')
     a = ap.parse_args()
+    if a.reader:
+        bench_reader(a.minutes if a.minutes != 60.0 else 5.0)
+        return
     fx = load_fixture('three_axis')
     grade = load_grade('nav_grade')
     prof = build_profile(loop_plan(), fx)

@@ -2,10 +2,13 @@
 
     imu-calib replay BAG --fixture F --output CALIB.yaml [--imu-topic T] [--joint-topic T]
                      [--imu GRADE] [--config EST.yaml] [--iterations N] [--method ekf]
+                     [--reorder-window S]
 
 CONTRACT 5: exit 0 on success; on unusable input one clear line, non-zero exit, and no
 (partial) output file. ``--method srt|oscillation`` runs
-``imu_calib_ros.core.methods.<name>.calibrate`` on the whole bag.
+``imu_calib_ros.core.methods.<name>.calibrate`` on the whole bag. The bag reader puts each
+topic in header-stamp order (``--reorder-window``, docs/BAD_INPUT.md); what it reordered is
+printed on stderr and kept in the file under ``provenance.bag_reader``.
 """
 from __future__ import annotations
 
@@ -14,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError
+from ..core.reorder import ReorderStats
 from ..core.units import ENGINEERING
+from ..msg_adapters.bag import DEFAULT_REORDER_WINDOW_S
 from . import add_topic_arguments, check_output_file
 
 METHODS = ('ekf', 'srt', 'oscillation')
@@ -43,6 +48,10 @@ def register(subparsers: Any) -> None:
     p.add_argument('--method', default='ekf', choices=METHODS,
                    help='ekf: augmented-state EKF (default); srt: Savage\'s SRT processor; '
                         'oscillation: Kozlov & Kapralov\'s harmonic oscillations')
+    p.add_argument('--reorder-window', type=float, default=DEFAULT_REORDER_WINDOW_S,
+                   metavar='S', help='longest wait of a bag message to put its topic in '
+                   'header-stamp order, in seconds of log time (rosbag2 logs the receipt '
+                   f'time; default {DEFAULT_REORDER_WINDOW_S:g}; 0: no wait)')
     p.add_argument('--quiet', action='store_true', help='no progress bar or summary')
     p.set_defaults(func=run)
 
@@ -77,6 +86,27 @@ def _srt_note(info: dict[str, Any]) -> None:
           f'{", ".join(not_est) or "none"}', file=sys.stderr)
 
 
+def _reorder_note(stats: dict[str, ReorderStats], window_s: float, quiet: bool) -> None:
+    """One stderr line per topic the reader had to put in stamp order (always when some
+    messages stayed out of order or the stamps jumped back)."""
+    for topic, st in stats.items():
+        if st.late or st.backward_jumps or (st.reordered and not quiet):
+            hint = (f' (the estimator rejects them; a --reorder-window over {window_s:g} s '
+                    'may take them in)' if st.late else '')
+            print(f'imu-calib replay: note: {topic}: {st.describe()}{hint}', file=sys.stderr)
+
+
+def _with_provenance(calib: Any, args: Any, stats: dict[str, ReorderStats]) -> Any:
+    """The calibration with the bag reader's reorder counts under ``provenance``."""
+    import dataclasses
+    extra = dict(calib.extra)
+    prov = dict(extra.get('provenance', {}) or {})
+    prov['bag_reader'] = {'bag': str(args.bag), 'reorder_window_s': float(args.reorder_window),
+                          'reorder': {t: s.as_dict() for t, s in stats.items()}}
+    extra['provenance'] = prov
+    return dataclasses.replace(calib, extra=extra)
+
+
 def run(args: Any) -> int:
     """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
     from ..core.fixture import load_fixture
@@ -90,10 +120,12 @@ def run(args: Any) -> int:
     grade = load_grade(args.imu) if args.imu else None
     if not Path(args.bag).exists():
         raise InputError(f'bag {args.bag} does not exist')
+    reorder: dict[str, ReorderStats] = {}  # what the bag reader reordered, per topic
     if args.method != 'ekf':
         from ..core.methods import oscillation, srt
         method = {'srt': srt.calibrate, 'oscillation': oscillation.calibrate}[args.method]
-        imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
+        imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic,
+                               args.reorder_window, reorder)
         # the analytic methods take the parameters they do not solve for, and the consider
         # covariance, from a grade: nav_grade unless --imu says otherwise
         grade = grade or load_grade('nav_grade')
@@ -116,14 +148,23 @@ def run(args: Any) -> int:
             from tqdm import tqdm
             bar = tqdm(unit=' samples', unit_scale=True, file=sys.stderr,
                        desc=f'replay x{args.iterations}')
+        passes: list[Any] = []
+
+        def open_bag() -> Any:
+            passes[:] = [iter_bag(args.bag, args.imu_topic, args.joint_topic,
+                                  args.reorder_window)]
+            return passes[0]
+
         try:
-            est = replay(lambda: iter_bag(args.bag, args.imu_topic, args.joint_topic),
-                         fixture, grade, config, args.iterations,
+            est = replay(open_bag, fixture, grade, config, args.iterations,
                          progress=bar.update if bar is not None else None)
         finally:
             if bar is not None:
                 bar.close()
         calib = est.estimate()
+        reorder = passes[-1].reorder_stats
+    _reorder_note(reorder, args.reorder_window, args.quiet)
+    calib = _with_provenance(calib, args, reorder)
     calib.save(out)
     if not args.quiet:
         print(_summary(calib))

@@ -9,7 +9,12 @@ What works with rosbags 0.11 (measured, see ``test/test_bag.py``):
   statistics are inside it; ``metadata.yaml`` only repeats them).
 - reading: ``rosbags.rosbag2.Reader`` reads a bag directory of either storage, a lone
   ``.mcap`` file and a lone ``.db3`` file. Messages come in log-time (record timestamp)
-  order; the writer here sets the record timestamp equal to the header stamp.
+  order; the writer here sets the record timestamp equal to the header stamp, rosbag2 sets
+  it to the receipt time (header stamp + transport delay: at 2 kHz a 1.5-2.5 ms delay puts
+  one IMU message in eight behind a newer one). Every read path therefore delivers each
+  topic in header-stamp order through a bounded reorder window (``reorder_window_s`` of log
+  time, :mod:`imu_calib_ros.core.reorder`), and counts what it reordered, what came too
+  late for the window, and backward jumps (a looping bag), which it passes on untouched.
 
 Every write is atomic: the bag is written under a temporary name in the target's directory
 and renamed into place, so a failed or interrupted write leaves no partial bag.
@@ -23,6 +28,7 @@ and values rosbags gives.
 """
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import uuid
@@ -33,8 +39,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..core.errors import BagError, InputError
+from ..core.reorder import BatchReorder, ReorderStats
 from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
 from .convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, ImuCovariances, NS_PER_S,
                       imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg,
@@ -42,6 +50,9 @@ from .convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, ImuCovariances, NS_PER_S
 
 DEFAULT_IMU_TOPIC = '/imu/data_raw'
 DEFAULT_JOINT_TOPIC = '/joint_states'
+#: Default longest wait of a message for its topic's stamp order [s of log time]: far above
+#: rosbag2's receipt jitter (milliseconds), far below a looping bag's backward jump.
+DEFAULT_REORDER_WINDOW_S = 0.5
 Storage = Literal['mcap', 'sqlite3']
 
 
@@ -340,8 +351,10 @@ def _sample(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> ImuSample
 
 
 def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_TOPIC,
-             joint_topic: str | None = DEFAULT_JOINT_TOPIC) -> 'BagSamples':
-    """Stream the IMU and joint samples of a bag in log-time order, with bounded memory.
+             joint_topic: str | None = DEFAULT_JOINT_TOPIC,
+             reorder_window_s: float = DEFAULT_REORDER_WINDOW_S) -> 'BagSamples':
+    """Stream the IMU and joint samples of a bag, each topic in header-stamp order, with
+    bounded memory.
 
     Parameters
     ----------
@@ -349,34 +362,48 @@ def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_T
         Bag directory (mcap or sqlite3 storage), or a single ``.mcap``/``.db3`` file.
     imu_topic, joint_topic:
         ``sensor_msgs/Imu`` and ``sensor_msgs/JointState`` topics; ``None`` skips one.
+    reorder_window_s:
+        Longest time [s of log time] a message is held back to put its topic in stamp order
+        (:mod:`imu_calib_ros.core.reorder`; rosbag2's log time is the receipt time).
 
     Yields
     ------
     ImuSample | JointSample
-        Stamped with the header stamp, in the order of the record (log) timestamps.
+        Stamped with the header stamp; each topic in stamp order (a message later than the
+        window stays where it arrived, duplicates stay next to each other, a backward jump
+        stays as recorded: the estimator counts them), the two topics merged by stamp, IMU
+        first on equal stamps.
         Values are not checked (NaN passes through: the estimator rejects it).
         The returned iterator also has :meth:`BagSamples.batches` (the same data as
-        :func:`iter_bag_batches`), which replay uses to skip the per-sample objects.
+        :func:`iter_bag_batches`), which replay uses to skip the per-sample objects, and
+        :attr:`BagSamples.reorder_stats`, what the window did per topic.
 
     Raises
     ------
     BagError
         Missing path, not a bag, empty bag, missing topic, wrong type, corrupt data.
+    InputError
+        A negative or non-finite ``reorder_window_s`` (at once).
     """
-    return BagSamples(Path(path), imu_topic, joint_topic)
+    return BagSamples(Path(path), imu_topic, joint_topic, reorder_window_s)
 
 
 class BagSamples:
     """The iterator :func:`iter_bag` returns: samples one by one, or :meth:`batches`.
 
     Nothing is opened before the first ``next()`` (errors surface while iterating, as from
-    a generator).
+    a generator). :attr:`reorder_stats` maps each topic to the
+    :class:`~imu_calib_ros.core.reorder.ReorderStats` of the current (or last) pass, by
+    samples or by :meth:`batches`; complete once the iteration has ended.
     """
 
-    def __init__(self, path: Path, imu_topic: str | None, joint_topic: str | None) -> None:
+    def __init__(self, path: Path, imu_topic: str | None, joint_topic: str | None,
+                 reorder_window_s: float = DEFAULT_REORDER_WINDOW_S) -> None:
         self.path = path
         self.imu_topic = imu_topic
         self.joint_topic = joint_topic
+        self.reorder_window_s = _check_window(reorder_window_s)
+        self.reorder_stats: dict[str, ReorderStats] = {}
         self._it: Iterator[ImuSample | JointSample] | None = None
 
     def __iter__(self) -> 'BagSamples':
@@ -384,28 +411,68 @@ class BagSamples:
 
     def __next__(self) -> ImuSample | JointSample:
         if self._it is None:
-            self._it = _iter_samples(self.path, self.imu_topic, self.joint_topic)
+            self._it = _iter_samples(self.path, self.imu_topic, self.joint_topic,
+                                     self.reorder_window_s, self.reorder_stats)
         return next(self._it)
 
     def batches(self, window_msgs: int | None = None) -> Iterator[ImuBatch | JointBatch]:
-        """:func:`iter_bag_batches` of the same bag and topics."""
+        """:func:`iter_bag_batches` of the same bag, topics and reorder window."""
         return iter_bag_batches(self.path, self.imu_topic, self.joint_topic,
-                                window_msgs or BATCH_WINDOW_MSGS)
+                                window_msgs or BATCH_WINDOW_MSGS, self.reorder_window_s,
+                                self.reorder_stats)
 
 
-def _iter_samples(p: Path, imu_topic: str | None, joint_topic: str | None
+def _check_window(reorder_window_s: float) -> float:
+    w = float(reorder_window_s)
+    if not (math.isfinite(w) and w >= 0.0):
+        raise InputError(f'reorder window must be a finite number of seconds >= 0, got '
+                         f'{reorder_window_s}')
+    return w
+
+
+def _iter_samples(p: Path, imu_topic: str | None, joint_topic: str | None,
+                  reorder_window_s: float, stats: dict[str, ReorderStats] | None
                   ) -> Iterator[ImuSample | JointSample]:
-    wanted = _wanted(imu_topic, joint_topic)
-    with _open_reader(p) as reader:
-        conns = _connections(reader, p, wanted)
-        store = _typestore()
-        buf: list[tuple[Any, int, Any]] = []
-        for item in _raw_messages(reader, p, conns):
-            buf.append(item)
-            if len(buf) >= ITER_CHUNK_MSGS:
-                yield from _decode_chunk(store, p, buf)
-                buf = []
-        yield from _decode_chunk(store, p, buf)
+    for out in _ordered_windows(p, imu_topic, joint_topic, ITER_CHUNK_MSGS, reorder_window_s,
+                                stats):
+        joints = out.get(joint_topic, []) if joint_topic else []
+        yield from _merge_samples(joints, out.get(imu_topic, []) if imu_topic else [])
+
+
+def _merge_samples(joints: list[JointBatch], imu: list[ImuBatch]
+                   ) -> Iterator[ImuSample | JointSample]:
+    """The samples of two topics merged by stamp (IMU first on equal stamps, as
+    :func:`write_bag` records them), each topic's own order kept (a late message stays where
+    it is: merged by the newest stamp so far of its topic)."""
+    samples: list[ImuSample | JointSample] = []
+    for b in joints:
+        samples += _samples_of(b)
+    if not joints or not imu:
+        for b in imu:
+            samples += _samples_of(b)
+        return iter(samples)
+    nj = len(samples)
+    for b in imu:
+        samples += _samples_of(b)
+    kj = np.maximum.accumulate(np.concatenate([b.stamps_ns for b in joints]))
+    ki = np.maximum.accumulate(np.concatenate([b.stamps_ns for b in imu]))
+    order = np.empty(len(samples), np.int64)  # merged position -> index into samples
+    order[np.arange(nj) + np.searchsorted(ki, kj, side='right')] = np.arange(nj)
+    order[np.arange(len(ki)) + np.searchsorted(kj, ki, side='left')] = \
+        nj + np.arange(len(ki))
+    return map(samples.__getitem__, order.tolist())
+
+
+def _samples_of(b: ImuBatch | JointBatch) -> list[Any]:
+    """The samples of a batch (as ``batch.sample(i)`` gives them, built faster)."""
+    stamps = b.stamps_ns.tolist()
+    if isinstance(b, ImuBatch):
+        fid = b.frame_id
+        return [ImuSample(t, w, f, fid) for t, w, f in zip(stamps, b.gyro_rad_s, b.accel_m_s2)]
+    names, vel = b.names, b.velocities_rad_s
+    if vel is None:
+        return [JointSample(t, names, q, None) for t, q in zip(stamps, b.positions_rad)]
+    return [JointSample(t, names, q, v) for t, q, v in zip(stamps, b.positions_rad, vel)]
 
 
 BATCH_WINDOW_MSGS = 16384  # raw messages per window of iter_bag_batches (~5 MB of Imu)
@@ -413,17 +480,26 @@ BATCH_WINDOW_MSGS = 16384  # raw messages per window of iter_bag_batches (~5 MB 
 
 def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_TOPIC,
                      joint_topic: str | None = DEFAULT_JOINT_TOPIC,
-                     window_msgs: int = BATCH_WINDOW_MSGS) -> Iterator[ImuBatch | JointBatch]:
+                     window_msgs: int = BATCH_WINDOW_MSGS,
+                     reorder_window_s: float = DEFAULT_REORDER_WINDOW_S,
+                     reorder_stats: dict[str, ReorderStats] | None = None
+                     ) -> Iterator[ImuBatch | JointBatch]:
     """Stream a bag as :class:`JointBatch` / :class:`ImuBatch` chunks, with bounded memory.
 
     The messages are read in log-time order in windows of ``window_msgs``; each window is
-    decoded with the numpy fast path (:func:`read_bag`'s) and yields its joint states first,
-    then its IMU samples, each as batches in log-time order. Joint states thus arrive up to
-    one window *early*, never late, relative to the IMU samples (the estimator buffers joint
+    decoded with the numpy fast path (:func:`read_bag`'s), each topic is put in header-stamp
+    order by its reorder window (``reorder_window_s`` of log time, as :func:`iter_bag`),
+    and the window yields the joint states it releases first, then the IMU samples, as
+    batches; IMU samples wait for the joint states stamped before them, so joint states
+    arrive early, never late, relative to the IMU samples (the estimator buffers joint
     states; its results do not depend on how far ahead they are). Where the fast path does
     not apply, messages are decoded one by one and split into runs of one joint-name list /
     one IMU frame_id, so that every sample keeps its own names and frame_id (as with
-    :func:`iter_bag`). Memory: one window of raw and decoded messages.
+    :func:`iter_bag`). Memory: one window of raw and decoded messages plus the reorder
+    window.
+
+    ``reorder_stats``, if given, is cleared and filled with each topic's
+    :class:`~imu_calib_ros.core.reorder.ReorderStats` (complete at the end).
 
     Raises
     ------
@@ -432,40 +508,229 @@ def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAU
     """
     if window_msgs < 1:
         raise InputError(f'window_msgs must be >= 1, got {window_msgs}')
-    p = Path(path)
+    window_s = _check_window(reorder_window_s)
+    for out in _ordered_windows(Path(path), imu_topic, joint_topic, window_msgs, window_s,
+                                reorder_stats):
+        for topic in sorted(out, key=lambda t: t != joint_topic):  # the joint topic first
+            yield from out[topic]
+
+
+Part = ImuBatch | JointBatch
+
+
+def _ordered_windows(p: Path, imu_topic: str | None, joint_topic: str | None,
+                     window_msgs: int, reorder_window_s: float,
+                     stats: dict[str, ReorderStats] | None) -> Iterator[dict[str, list[Any]]]:
+    """Per window of ``window_msgs`` raw messages: each topic's decoded batches that its
+    reorder window releases (``{topic: [batch, ...]}``), and at the end what it still holds.
+
+    The IMU samples are released no later than the joint states stamped before them
+    (:class:`_JointGate`), so a consumer that takes each window's joint states first never
+    gets a joint state after an IMU sample stamped later.
+    """
     wanted = _wanted(imu_topic, joint_topic)
     with _open_reader(p) as reader:
         conns = _connections(reader, p, wanted)
         store = _typestore()
+        orders = {t: _TopicOrder(reorder_window_s) for t in wanted}
+        if stats is not None:
+            stats.clear()
+            stats.update({t: o.stats for t, o in orders.items()})
+        gate = _JointGate(orders[imu_topic], orders[joint_topic]) \
+            if imu_topic and joint_topic else None
         pending: dict[str, list[Any]] = {t: [] for t in wanted}
+        clocks: dict[str, list[int]] = {t: [] for t in wanted}
         first: dict[str, tuple[Any, int]] = {}
         count = 0
         for conn, t_ns, raw in _raw_messages(reader, p, conns):
-            if not pending[conn.topic]:
-                first[conn.topic] = (conn, t_ns)
-            pending[conn.topic].append(raw)
+            topic = conn.topic
+            raws = pending[topic]
+            if not raws:
+                first[topic] = (conn, t_ns)
+            raws.append(raw)
+            clocks[topic].append(t_ns)
             count += 1
             if count >= window_msgs:
-                yield from _decode_window(store, p, pending, first, joint_topic)
+                out = _decode_window(store, p, pending, clocks, first, orders, joint_topic)
+                if gate is not None:
+                    out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
+                yield out
                 count = 0
-        yield from _decode_window(store, p, pending, first, joint_topic)
+        out = _decode_window(store, p, pending, clocks, first, orders, joint_topic)
+        if gate is not None:
+            out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
+        yield out
+        out = {t: o.flush() for t, o in orders.items()}
+        if gate is not None:
+            out[imu_topic] = gate.flush(out[imu_topic])  # type: ignore[index]
+        yield out
+
+
+GATE_MAX_MSGS = 65536  # IMU samples at most held back for the joint states (~3.6 MB)
+
+
+class _JointGate:
+    """Holds back released IMU samples until the joint states stamped before them are out.
+
+    Every joint state still to come is stamped at or after the joint topic's release mark
+    (or is late), so IMU samples stamped before that mark may go. Should the joint states
+    fall behind (they stopped, or run on another clock), an IMU sample waits at most one
+    more reorder window of stamps, and never more than :data:`GATE_MAX_MSGS` samples. After
+    a backward jump (a looping bag) the gate opens once: the consumer restarts anyway.
+    """
+
+    def __init__(self, imu: '_TopicOrder', joints: '_TopicOrder') -> None:
+        self.imu = imu
+        self.joints = joints
+        self.held: list[Any] = []
+        self._jumps = 0
+
+    def _jumped(self) -> bool:
+        jumps = self.imu.stats.backward_jumps + self.joints.stats.backward_jumps
+        jumped, self._jumps = jumps != self._jumps, jumps
+        return jumped
+
+    def take(self, parts: list[Any]) -> list[Any]:
+        """The IMU batches that may go now (``parts`` just released by the IMU window)."""
+        parts = _merge_parts(self.held + parts)
+        if self._jumped() or not parts:
+            self.held = []
+            return parts
+        newest = np.maximum.accumulate(np.concatenate([b.stamps_ns for b in parts]))
+        n = len(newest)
+        k = 0
+        j_mark, i_mark = self.joints.engine.mark, self.imu.engine.mark
+        if j_mark is not None:
+            k = int(np.searchsorted(newest, j_mark, side='left'))  # stamped before it
+        if i_mark is not None:
+            k = max(k, int(np.searchsorted(newest, i_mark - self.imu.engine.window_ns,
+                                           side='right')))
+        k = max(k, n - GATE_MAX_MSGS)
+        self.held = _take_parts(parts, np.arange(k, n))
+        return _take_parts(parts, np.arange(k))
+
+    def flush(self, parts: list[Any]) -> list[Any]:
+        """Everything (end of the bag)."""
+        out = _merge_parts(self.held + parts)
+        self.held = []
+        return out
 
 
 def _decode_window(store: Any, path: Path, pending: dict[str, list[Any]],
-                   first: dict[str, tuple[Any, int]], joint_topic: str | None
-                   ) -> Iterator[ImuBatch | JointBatch]:
-    """The window's joint batches, then its IMU batches; empties ``pending``."""
-    order = sorted(pending, key=lambda t: t != joint_topic)  # the joint topic first
-    for topic in order:
-        raws = pending[topic]
+                   clocks: dict[str, list[int]], first: dict[str, tuple[Any, int]],
+                   orders: dict[str, '_TopicOrder'], joint_topic: str | None
+                   ) -> dict[str, list[Any]]:
+    """Decode the window's messages of each topic and pass them through its reorder window;
+    empties ``pending`` and ``clocks``."""
+    out: dict[str, list[Any]] = {}
+    for topic, raws in pending.items():
         if not raws:
+            out[topic] = []
             continue
         conn, t0 = first[topic]
+        parts: list[Any] = list(_window_joints(store, path, conn, t0, raws)
+                                if topic == joint_topic else
+                                _window_imu(store, path, conn, t0, raws))
+        out[topic] = orders[topic].push(parts, np.array(clocks[topic], np.int64))
         pending[topic] = []
-        if topic == joint_topic:
-            yield from _window_joints(store, path, conn, t0, raws)
+        clocks[topic] = []
+    return out
+
+
+class _TopicOrder:
+    """One topic's reorder window over decoded batches: the engine and the batches it holds.
+
+    The decoded messages stay in their batches (numpy); the engine only sees stamps and log
+    times and answers with message ids, which are taken from the held + new batches.
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.engine = BatchReorder(window_s)
+        self.held: list[Any] = []  # batches of the held messages, in id order
+        self.pushed = 0
+
+    @property
+    def stats(self) -> ReorderStats:
+        return self.engine.stats
+
+    def push(self, parts: list[Any], clocks: NDArray[np.int64]) -> list[Any]:
+        """The batches released by the new messages ``parts`` (log times ``clocks``)."""
+        parts = [b for b in parts if len(b)]
+        if not parts:
+            return []
+        held_ids = self.engine.pending_ids
+        base = self.pushed
+        stamps = np.concatenate([b.stamps_ns for b in parts])
+        released = self.engine.push(stamps, clocks)
+        self.pushed += len(stamps)
+        return self._take(self.held + parts, held_ids, base, released)
+
+    def flush(self) -> list[Any]:
+        """Everything still held, in stamp order."""
+        held_ids = self.engine.pending_ids
+        return self._take(self.held, held_ids, self.pushed, self.engine.flush())
+
+    def _take(self, parts: list[Any], held_ids: NDArray[np.int64], base: int,
+              released: NDArray[np.int64]) -> list[Any]:
+        """Released ids -> batches; the batches of the ids still pending become ``held``."""
+        parts = _merge_parts(parts)
+
+        def positions(ids: NDArray[np.int64]) -> NDArray[np.int64]:
+            return np.where(ids >= base, len(held_ids) + ids - base,
+                            np.searchsorted(held_ids, ids))
+
+        out = _take_parts(parts, positions(released))
+        self.held = _merge_parts(_take_parts(parts, positions(self.engine.pending_ids)))
+        return out
+
+
+def _merge_parts(parts: list[Any]) -> list[Any]:
+    """Consecutive batches of one layout (IMU frame_id; joint names and velocities) joined."""
+    out: list[Any] = []
+    for b in parts:
+        a = out[-1] if out else None
+        if isinstance(a, ImuBatch) and isinstance(b, ImuBatch) and a.frame_id == b.frame_id:
+            out[-1] = ImuBatch(np.concatenate([a.stamps_ns, b.stamps_ns]),
+                               np.concatenate([a.gyro_rad_s, b.gyro_rad_s]),
+                               np.concatenate([a.accel_m_s2, b.accel_m_s2]), a.frame_id)
+        elif (isinstance(a, JointBatch) and isinstance(b, JointBatch) and a.names == b.names
+              and a.positions_rad.shape[1:] == b.positions_rad.shape[1:]
+              and (a.velocities_rad_s is None) == (b.velocities_rad_s is None)):
+            vel = None if a.velocities_rad_s is None or b.velocities_rad_s is None else \
+                np.concatenate([a.velocities_rad_s, b.velocities_rad_s])
+            out[-1] = JointBatch(np.concatenate([a.stamps_ns, b.stamps_ns]), a.names,
+                                 np.concatenate([a.positions_rad, b.positions_rad]), vel)
         else:
-            yield from _window_imu(store, path, conn, t0, raws)
+            out.append(b)
+    return out
+
+
+def _take_parts(parts: list[Any], pos: NDArray[np.int64]) -> list[Any]:
+    """The messages at positions ``pos`` of the concatenated ``parts``, in that order, as
+    batches (one per run of positions in one part)."""
+    if not len(pos):
+        return []
+    ends = np.cumsum([len(b) for b in parts])
+    which = np.searchsorted(ends, pos, side='right')
+    local = pos - (ends - [len(b) for b in parts])[which]
+    cuts = np.flatnonzero(np.diff(which)) + 1
+    out = []
+    for run_which, run in zip(np.split(which, cuts), np.split(local, cuts)):
+        b = parts[int(run_which[0])]
+        lo, hi = int(run[0]), int(run[-1]) + 1
+        idx: Any = run
+        if hi - lo == len(run) and np.all(np.diff(run) == 1):  # a slice: views, no copy
+            if hi - lo == len(b):
+                out.append(b)
+                continue
+            idx = slice(lo, hi)
+        if isinstance(b, ImuBatch):
+            out.append(ImuBatch(b.stamps_ns[idx], b.gyro_rad_s[idx], b.accel_m_s2[idx],
+                                b.frame_id))
+        else:
+            vel = None if b.velocities_rad_s is None else b.velocities_rad_s[idx]
+            out.append(JointBatch(b.stamps_ns[idx], b.names, b.positions_rad[idx], vel))
+    return out
 
 
 def _window_imu(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
@@ -530,40 +795,6 @@ def _window_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
 ITER_CHUNK_MSGS = 2048  # messages decoded together by iter_bag (~0.7 MB of Imu messages)
 
 
-def _decode_chunk(store: Any, path: Path, buf: list[tuple[Any, int, Any]]
-                  ) -> Iterator[ImuSample | JointSample]:
-    """The samples of consecutive raw messages, in their order (numpy fast path per topic)."""
-    if not buf:
-        return
-    groups: dict[str, list[int]] = {}
-    for k, (conn, _, _) in enumerate(buf):
-        groups.setdefault(conn.topic, []).append(k)
-    decoded: dict[str, Any] = {}
-    for topic, idx in groups.items():
-        conn, t0, raw0 = buf[idx[0]]
-        raws = [buf[k][2] for k in idx]
-        rows = _rows(raws)
-        batch: ImuBatch | JointBatch | None = None
-        if rows is not None and conn.msgtype == IMU_MSGTYPE:
-            first = _sample(store, path, conn, t0, raw0)
-            batch = _unpack_imu(rows)
-            if batch is not None and not _same_sample(batch, first):
-                batch = None
-        elif rows is not None:
-            first_msg = _deserialize(store, path, conn, t0, raw0)
-            _sample(store, path, conn, t0, raw0)
-            batch = _unpack_joints(rows, first_msg)
-        decoded[topic] = batch
-    pos = dict.fromkeys(groups, 0)
-    for conn, t_ns, raw in buf:
-        batch = decoded[conn.topic]
-        if batch is None:
-            yield _sample(store, path, conn, t_ns, raw)
-        else:
-            yield batch.sample(pos[conn.topic])
-            pos[conn.topic] += 1
-
-
 def _same_sample(batch: ImuBatch, first: ImuSample | JointSample) -> bool:
     """Whether the fast decode's first sample equals rosbags' decode of the same message."""
     assert isinstance(first, ImuSample)
@@ -598,18 +829,31 @@ def _joint_batch_slow(samples: list[JointSample], path: Path, topic: str) -> Joi
 
 
 def read_bag(path: str | os.PathLike[str], imu_topic: str = DEFAULT_IMU_TOPIC,
-             joint_topic: str | None = DEFAULT_JOINT_TOPIC) -> tuple[ImuBatch, JointBatch]:
+             joint_topic: str | None = DEFAULT_JOINT_TOPIC,
+             reorder_window_s: float = DEFAULT_REORDER_WINDOW_S,
+             reorder_stats: dict[str, ReorderStats] | None = None
+             ) -> tuple[ImuBatch, JointBatch]:
     """Read a whole bag into an :class:`ImuBatch` and a :class:`JointBatch`.
 
-    Samples keep the bag's log-time order and their header stamps. Joint samples whose names
-    are a permutation of the first message's names are reordered to it; missing velocities
-    of some messages are NaN (all missing: ``None``). With ``joint_topic=None`` the joint
-    batch is empty. Raises :class:`BagError` as :func:`iter_bag` does.
+    Samples keep their header stamps; each topic is in header-stamp order through the same
+    reorder window as :func:`iter_bag` (``reorder_window_s``; what it did goes into
+    ``reorder_stats`` if given). Joint samples whose names are a permutation of the first
+    message's names are reordered to it; missing velocities of some messages are NaN (all
+    missing: ``None``). With ``joint_topic=None`` the joint batch is empty. Raises
+    :class:`BagError` as :func:`iter_bag` does.
     """
     p = Path(path)
     wanted = _wanted(imu_topic, joint_topic)
+    window_s = _check_window(reorder_window_s)
     imu_parts: list[ImuBatch] = []
     joint_parts: list[JointBatch] = []
+    orders = {t: _TopicOrder(window_s) for t in wanted}
+    if reorder_stats is not None:
+        reorder_stats.clear()
+        reorder_stats.update({t: o.stats for t, o in orders.items()})
+
+    def keep(topic: str, batches: list[Any]) -> None:
+        (imu_parts if topic == imu_topic else joint_parts).extend(batches)
 
     def flush(topic: str) -> None:
         """Decode the pending raw messages of ``topic`` (bounds the raw bytes held)."""
@@ -617,25 +861,30 @@ def read_bag(path: str | os.PathLike[str], imu_topic: str = DEFAULT_IMU_TOPIC,
         if not raws:
             return
         conn, t0 = first[topic]
-        if topic == imu_topic:
-            imu_parts.append(_read_imu(store, p, conn, t0, raws))
-        else:
-            joint_parts.append(_read_joints(store, p, conn, t0, raws))
+        batch = (_read_imu(store, p, conn, t0, raws) if topic == imu_topic else
+                 _read_joints(store, p, conn, t0, raws))
+        keep(topic, orders[topic].push([batch], np.array(clocks[topic], np.int64)))
         pending[topic] = []
+        clocks[topic] = []
 
     with _open_reader(p) as reader:
         conns = _connections(reader, p, wanted)
         store = _typestore()
         pending: dict[str, list[Any]] = {t: [] for t in wanted}
+        clocks: dict[str, list[int]] = {t: [] for t in wanted}
         first: dict[str, tuple[Any, int]] = {}
         for conn, t_ns, raw in _raw_messages(reader, p, conns):
-            if conn.topic not in first or not pending[conn.topic]:
-                first[conn.topic] = (conn, t_ns)
-            pending[conn.topic].append(raw)
-            if len(pending[conn.topic]) >= READ_CHUNK_MSGS:
-                flush(conn.topic)
+            topic = conn.topic
+            raws = pending[topic]
+            if not raws:
+                first[topic] = (conn, t_ns)
+            raws.append(raw)
+            clocks[topic].append(t_ns)
+            if len(raws) >= READ_CHUNK_MSGS:
+                flush(topic)
         for topic in wanted:
             flush(topic)
+            keep(topic, orders[topic].flush())
     imu = _concat_imu(imu_parts)
     if joint_topic is None:
         return imu, JointBatch(np.zeros(0, np.int64), (), np.zeros((0, 0)), None)
@@ -864,6 +1113,7 @@ def imu_msg_bytes(sample: ImuSample, frame_id: str | None = None,
     return bytes(store.serialize_cdr(msg, IMU_MSGTYPE))
 
 
-__all__ = ['BagSamples', 'DEFAULT_IMU_TOPIC', 'DEFAULT_JOINT_TOPIC', 'TopicInfo',
+__all__ = ['BagSamples', 'DEFAULT_IMU_TOPIC', 'DEFAULT_JOINT_TOPIC', 'DEFAULT_REORDER_WINDOW_S',
+           'ReorderStats', 'TopicInfo',
            'imu_msg_bytes', 'iter_bag', 'iter_bag_batches', 'list_topics', 'read_bag',
            'remove_bag', 'write_bag']

@@ -25,8 +25,9 @@ diagnostics follow ``/clock``; a backward jump of ``/clock`` (a looping bag) res
 estimator's navigation (rclpy jump callback); the estimator itself only sees message stamps.
 
 Threads: the raw IMU is served by its own thread
-(:class:`~imu_calib_ros.nodes.common.InputThread`: serialised bytes in, checked, compensated
-and published as bytes at once, tens of microseconds), which queues the sample; the rest
+(:class:`~imu_calib_ros.nodes.common.InputThread`: serialised bytes in, checked, put back in
+stamp order within ``reorder_window_s`` (:mod:`imu_calib_ros.core.reorder`, issue 17),
+compensated and published as bytes, tens of microseconds), which queues the sample; the rest
 spins in a SingleThreadedExecutor, where a 20 Hz timer hands the queue to an
 :class:`~imu_calib_ros.nodes.estimator_runner.EstimatorRunner` (a child process by default,
 or a thread), whose bounded queue drops and counts under overload. Faults (issue 6): see
@@ -54,6 +55,7 @@ from ..core.diagnostics import frame_mismatch, health_values
 from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
 from ..core.input_guard import rejection_counts
+from ..core.reorder import ReorderBuffer
 from ..core.types import JointSample
 from ..msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
                                     time_msg_from_ns)
@@ -108,6 +110,10 @@ class CalibrationNodeConfig:
         'doc': 'nominal IMU rate [Hz] (gaps, noise of the mean, missing samples); 0 = detect'
                ' from the data (median of the first 20 stamp intervals)',
         'min': 0.0, 'max': 100000.0})
+    reorder_window_s: float = field(default=0.005, metadata={
+        'doc': 'longest wait [s] of a raw IMU sample to put the stream back in header-stamp'
+               ' order (transport jitter); a sample later than that is rejected as'
+               ' out_of_order (reorder.late); 0 = no wait', 'min': 0.0, 'max': 1.0})
     output_file: str = field(default='imu_calibration.yaml', metadata={
         'doc': 'where ~/save_calibration writes the calibration (CONTRACT 4)'})
     save_on_shutdown: bool = field(default=False, metadata={
@@ -188,6 +194,9 @@ class CalibrationNode(Node):
         self._good_seq = -1
         # filled by the IMU input thread and the joint callback, drained by the filter timer
         self._pending: collections.deque[tuple[int, Any, Any] | JointSample] = collections.deque()
+        # raw IMU back in stamp order (IMU input thread); a time jump or reset sets the flag
+        self._reorder: ReorderBuffer[tuple[str, Any, Any]] = ReorderBuffer(cfg.reorder_window_s)
+        self._reorder_reset = False
         self.counts = {'imu': 0, 'joint': 0, 'published': 0, 'missing_imu': 0,
                        'time_jumps_backward': 0}
         self.rejected = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0, 'bad_message': 0,
@@ -204,7 +213,8 @@ class CalibrationNode(Node):
         self._last_rx = None
         self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
         self._imu_sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
-                                    sensor_qos(cfg.queue_depth), raw=True)
+                                    sensor_qos(cfg.queue_depth), raw=True,
+                                    idle=self._release_held)
         self.create_subscription(JointState, 'joint_states', self._on_joints,
                                  sensor_qos(cfg.queue_depth))
         self._est_pub = quiet_publisher(self, DiagnosticArray, '~/estimates', latched_qos())
@@ -233,7 +243,8 @@ class CalibrationNode(Node):
         self.rejected[reason] += 1
 
     def _on_imu(self, data: bytes) -> None:
-        """One raw IMU message (serialised bytes; runs in the IMU input thread)."""
+        """One raw IMU message (serialised bytes; runs in the IMU input thread), checked, then
+        held by the reorder window until it is in stamp order (:meth:`_on_ordered_imu`)."""
         self.counts['imu'] += 1
         self._last_rx = self.get_clock().now()
         try:
@@ -248,6 +259,27 @@ class CalibrationNode(Node):
             self.runner.set_frame_id(frame)
         if not finite3(gyro, accel):
             return self._reject('non_finite')
+        self._check_reorder_reset()
+        for ns, (frame, gyro, accel) in self._reorder.push(ns, (frame, gyro, accel),
+                                                           time.monotonic_ns()):
+            self._on_ordered_imu(ns, frame, gyro, accel)
+
+    def _check_reorder_reset(self) -> None:
+        if self._reorder_reset:  # the clock jumped back, or ~/reset: forget what was held
+            self._reorder_reset = False
+            self._reorder.reset()
+
+    def _release_held(self) -> float | None:
+        """IMU input thread, after each burst: the samples whose reorder wait is over (the
+        stream paused); returns the seconds until the next one is due."""
+        self._check_reorder_reset()
+        for ns, (frame, gyro, accel) in self._reorder.release(time.monotonic_ns()):
+            self._on_ordered_imu(ns, frame, gyro, accel)
+        due = self._reorder.due_ns()
+        return None if due is None else (due - time.monotonic_ns()) * 1e-9
+
+    def _on_ordered_imu(self, ns: int, frame: str, gyro: Any, accel: Any) -> None:
+        """A raw IMU sample in stamp order, or too late for the window (rejected here)."""
         last = self._last_imu_ns
         if last is not None:
             if ns <= last:
@@ -306,6 +338,7 @@ class CalibrationNode(Node):
         if jump.delta.nanoseconds >= 0:
             return
         self.counts['time_jumps_backward'] += 1
+        self._reorder_reset = True
         self._pending.clear()
         self._last_imu_ns = None
         self._last_joint_ns = None
@@ -413,6 +446,8 @@ class CalibrationNode(Node):
             values['joint_rate_hz'] = f'{(joint_n - last_joint) / dt:.1f}'
         reasons = self.reasons(health)
         values.update({f'rejected.{k}': str(v) for k, v in reasons.items()})
+        values.update({f'reorder.{k}': str(v) for k, v in self._reorder.stats.as_dict().items()
+                       if v})
         values.update(health_values(health))
         values['estimator_alive'] = str(self.runner.alive)
         self._check_frames(imu_n)
@@ -507,6 +542,7 @@ class CalibrationNode(Node):
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         self._pending.clear()
+        self._reorder_reset = True
         ok = self.runner.request('reset', 30.0)
         self.rejected = {k: 0 for k in self.rejected}
         self._last_imu_ns = None

@@ -765,11 +765,16 @@ class InputThread:
     ``handle(msg)`` for each, in arrival order. ``handle`` runs in this thread: it must only
     touch state that is safe to share (counters, deques, atomic attribute swaps).
     ``raw=True`` hands over the serialised bytes (no Python message object is built).
+    ``idle()``, if given, runs in this thread after every burst and wait; it returns the
+    seconds until it wants to run again (None: no hurry), e.g. to release samples held by a
+    :class:`~imu_calib_ros.core.reorder.ReorderBuffer` when the stream pauses.
     """
 
     def __init__(self, node: Node, msg_type: Any, topic: str, handle: Callable[[Any], None],
-                 qos: QoSProfile, name: str = 'input', raw: bool = False):
+                 qos: QoSProfile, name: str = 'input', raw: bool = False,
+                 idle: Callable[[], float | None] | None = None):
         self._handle = handle
+        self._idle = idle
         self._context = node.context
         group = _NeverInExecutor()
         self.sub = node.create_subscription(msg_type, topic, handle, qos, callback_group=group,
@@ -784,7 +789,9 @@ class InputThread:
 
     def _run(self) -> None:
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-        sub, handle = self.sub, self._handle
+        sub, handle, idle = self.sub, self._handle, self._idle
+        longest = 200_000_000  # 0.2 s: also notices a shut-down context
+        timeout = longest
         try:
             with self._context.handle, sub.handle, self._gc.handle:
                 ws = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, self._context.handle)
@@ -793,7 +800,7 @@ class InputThread:
                     ws.clear_entities()
                     ws.add_subscription(sub.handle)
                     ws.add_guard_condition(self._gc.handle)
-                    ws.wait(200_000_000)  # 0.2 s: also notices a shut-down context
+                    ws.wait(timeout)
                     self.wakes += 1
                     while not self._stop:
                         info = take(sub.msg_type, sub.raw)
@@ -801,6 +808,10 @@ class InputThread:
                             break
                         self.messages += 1
                         handle(info[0])
+                    if idle is not None:
+                        again = idle()
+                        timeout = longest if again is None else \
+                            min(longest, max(int(again * 1e9), 100_000))
         except Exception as exc:  # noqa: BLE001 - shutdown races; reported by the node
             if not self._stop and self._context.ok():
                 self.error = f'{type(exc).__name__}: {exc}'

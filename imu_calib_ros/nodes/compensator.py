@@ -13,7 +13,9 @@ Run: ``compensator --ros-args -p calibration_file:=calib.yaml [-p imu_grade:=NAM
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -21,6 +23,7 @@ from sensor_msgs.msg import Imu
 
 from ..core.calibration import CalibrationResult
 from ..core.errors import ConfigError, ImuCalibError
+from ..core.reorder import ReorderBuffer
 from ..msg_adapters.convert import imu_cdr, imu_fields_from_cdr
 from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
                      diag9, finite3, quiet_publisher, reliable_qos, run_node, sensor_qos)
@@ -48,6 +51,10 @@ class CompensatorConfig:
         'doc': 'nominal IMU rate [Hz] (gap threshold 1.5 periods, noise of the mean); 0 = '
                'detect from the data (median of the first 20 stamp intervals)',
         'min': 0.0, 'max': 100000.0})
+    reorder_window_s: float = field(default=0.005, metadata={
+        'doc': 'longest wait [s] of a raw IMU sample to put the stream back in header-stamp'
+               ' order (transport jitter); a sample later than that is dropped as'
+               ' out_of_order (reorder.late); 0 = no wait', 'min': 0.0, 'max': 1.0})
     queue_depth: int = field(default=500, metadata={
         'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
         'max': 100000})
@@ -86,9 +93,10 @@ class CompensatorNode(Node):
                                          'compensation_non_finite': 0, 'bad_message': 0}
         self.published = 0
         self._last_stamp_ns: int | None = None
+        self._reorder: ReorderBuffer[tuple[str, Any, Any]] = ReorderBuffer(cfg.reorder_window_s)
         self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
         self._sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
-                                sensor_qos(cfg.queue_depth), raw=True)
+                                sensor_qos(cfg.queue_depth), raw=True, idle=self._release_held)
         if cfg.diagnostics_rate_hz > 0:
             self._diag_pub = quiet_publisher(self, DiagnosticArray, '/diagnostics', 10)
             self.create_timer(1.0 / cfg.diagnostics_rate_hz, self._on_diag_timer)
@@ -100,7 +108,8 @@ class CompensatorNode(Node):
         self.get_logger().warn(f'dropped raw IMU sample: {detail}', throttle_duration_sec=5.0)
 
     def _on_imu(self, data: bytes) -> None:
-        """One raw IMU message (serialised bytes; runs in the IMU input thread)."""
+        """One raw IMU message (serialised bytes; runs in the IMU input thread), checked, then
+        held by the reorder window until it is in stamp order (:meth:`_on_ordered_imu`)."""
         try:
             ns, frame, gyro, accel = imu_fields_from_cdr(data)
         except ImuCalibError:
@@ -110,6 +119,20 @@ class CompensatorNode(Node):
                                             f'"{self.calibration.frame_id}"')
         if not finite3(gyro, accel):
             return self._reject('non_finite', 'non-finite value')
+        for ns, (frame, gyro, accel) in self._reorder.push(ns, (frame, gyro, accel),
+                                                           time.monotonic_ns()):
+            self._on_ordered_imu(ns, frame, gyro, accel)
+
+    def _release_held(self) -> float | None:
+        """IMU input thread, after each burst: the samples whose reorder wait is over (the
+        stream paused); returns the seconds until the next one is due."""
+        for ns, (frame, gyro, accel) in self._reorder.release(time.monotonic_ns()):
+            self._on_ordered_imu(ns, frame, gyro, accel)
+        due = self._reorder.due_ns()
+        return None if due is None else (due - time.monotonic_ns()) * 1e-9
+
+    def _on_ordered_imu(self, ns: int, frame: str, gyro: Any, accel: Any) -> None:
+        """A raw IMU sample in stamp order, or too late for the window (dropped here)."""
         if self._last_stamp_ns is not None and ns <= self._last_stamp_ns:
             return self._reject('out_of_order', 'stamp not after the previous one')
         self._last_stamp_ns = ns
@@ -133,7 +156,9 @@ class CompensatorNode(Node):
         status.message = comp.rate_mismatch or ('OK' if bad == 0 else f'{bad} samples dropped')
         status.values = [KeyValue(key='published', value=str(self.published)),
                          KeyValue(key='received', value=str(self._sub.messages))] + [
-            KeyValue(key=f'rejected.{k}', value=str(v)) for k, v in self.rejected.items()]
+            KeyValue(key=f'rejected.{k}', value=str(v)) for k, v in self.rejected.items()] + [
+            KeyValue(key=f'reorder.{k}', value=str(v))
+            for k, v in self._reorder.stats.as_dict().items()]
         if comp.measured_period_s is not None:
             status.values.append(KeyValue(key='imu_rate_measured_hz',
                                           value=f'{1.0 / comp.measured_period_s:.6g}'))

@@ -21,8 +21,10 @@ completing, seen as ~100 of 700 missing at the start of a burst).
 from __future__ import annotations
 
 import sys
+import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from rclpy.node import Node
@@ -32,6 +34,7 @@ from sensor_msgs.msg import Imu, JointState
 from ..core.errors import ConfigError
 from ..core.fixture import load_fixture
 from ..core.methods.modulation import MODES, StreamingDemodulator
+from ..core.reorder import ReorderBuffer
 from ..msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
 from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit, reliable_qos,
                      run_node, sensor_qos)
@@ -56,6 +59,10 @@ class ModulationConfig:
         'doc': 'subscriber queue depth', 'min': 1, 'max': 100000})
     max_pending: int = field(default=2000, metadata={
         'doc': 'IMU samples held while waiting for joint states', 'min': 1, 'max': 1000000})
+    reorder_window_s: float = field(default=0.005, metadata={
+        'doc': 'longest wait [s] of a raw IMU sample to put the stream back in header-stamp'
+               ' order (transport jitter); a later one counts as out_of_order; 0 = no wait',
+        'min': 0.0, 'max': 1.0})
 
 
 class ModulationNode(Node):
@@ -78,6 +85,7 @@ class ModulationNode(Node):
         self.demod: StreamingDemodulator | None = None  # axis needs the other joints' angles
         self.rejected = {'non_finite': 0}
         self._early: deque = deque(maxlen=cfg.max_pending)
+        self._reorder: ReorderBuffer[Any] = ReorderBuffer(cfg.reorder_window_s)
         self._pub = self.create_publisher(Imu, 'imu/data_body', reliable_qos(cfg.queue_depth))
         # sensor-data QoS matches any IMU driver; a lost sample shortens the revolution mean
         # (counted as a gap), so with a reliable driver make it lossless with the standard
@@ -88,6 +96,8 @@ class ModulationNode(Node):
         self._sub_joints = self.create_subscription(JointState, 'joint_states',
                                                     self._on_joints,
                                                     reliable_qos(cfg.queue_depth))
+        if cfg.reorder_window_s > 0:  # what waited its window when the stream pauses
+            self.create_timer(0.05, self._release_held)
         self.get_logger().info(f'demodulating joint {joint!r}, mode {cfg.mode}')
 
     def _on_joints(self, msg: JointState) -> None:
@@ -113,6 +123,15 @@ class ModulationNode(Node):
             self.rejected['non_finite'] += 1
             self.get_logger().warn('dropped non-finite IMU sample', throttle_duration_sec=5.0)
             return
+        for _, ordered in self._reorder.push(s.stamp_ns, s, time.monotonic_ns()):
+            self._on_ordered_imu(ordered)
+
+    def _release_held(self) -> None:
+        for _, s in self._reorder.release(time.monotonic_ns()):
+            self._on_ordered_imu(s)
+
+    def _on_ordered_imu(self, s: Any) -> None:
+        """An IMU sample in stamp order (or too late for the reorder window)."""
         if self.demod is not None:
             self._publish(self.demod.push_imu(s))
         else:
@@ -121,7 +140,8 @@ class ModulationNode(Node):
     def destroy_node(self) -> None:
         """Log the counters, then stop."""
         counters = self.demod.counters if self.demod is not None else {}
-        log_at_exit(self, f'counters: {counters}, rejected: {self.rejected}')
+        log_at_exit(self, f'counters: {counters}, rejected: {self.rejected}, reorder: '
+                          f'{self._reorder.stats.as_dict()}')
         super().destroy_node()
 
     def _publish(self, samples: list) -> None:
