@@ -80,7 +80,7 @@ __all__ = ['EARTH_RATE_RAD_S', 'UNIT_KINDS', 'BodyMotion', 'Mounting', 'Unit', '
            'write_truth']
 
 #: WGS-84 defining earth rotation rate [rad/s] (NIMA TR8350.2, Table 3.1). ``core.earth``
-#: uses 7.2921151467e-5 (GRS-80); the 2e-9 relative difference is 1.5e-13 rad/s.
+#: uses 7.2921151467e-5 (GRS-80); the 2e-8 relative difference is 1.5e-12 rad/s (3e-7 deg/h).
 EARTH_RATE_RAD_S = 7.292115e-5
 # WGS-84 (TR8350.2 Tables 3.1-3.3)
 _A_M = 6378137.0
