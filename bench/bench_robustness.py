@@ -35,21 +35,21 @@ shuffled), an extra unknown joint (1/2), the random plan.
 
 Fractional design
 -----------------
-A cell is (unit class, plan@fixture): 16 cells. In each cell seed index ``s`` = 0..S-1 sets
-the (size, mounting) combination ``s mod 4`` (0.2/none, 1.0/none, 0.2/large, 1.0/large) and
-the timing level ``(s + p) mod L`` (``p`` = index of the plan@fixture, ``L`` = 4 timing
-levels, 5 for nav). S = 4 (5 for nav). So every timing level, size and mounting appears with
-every unit class and every plan, and per unit class the plan x (size, mounting) x timing
-table is a Latin square (each timing level meets each (size, mounting) combination once).
+A cell is (unit class, plan@fixture): 16 cells, S seeds each (S = L, the number of timing
+levels of the class: 4, nav 5). Seed index ``s`` = 0..S-1 of plan@fixture ``p`` (0..3) runs
+timing level ``t = (s + p) mod L`` with the (size, mounting) combination ``(t + p) mod 4``
+(0: 0.2/none, 1: 1.0/none, 2: 0.2/large, 3: 1.0/large). So in every cell every timing level
+appears once and every (size, mounting) combination at least once, and per unit class each
+timing level meets each (size, mounting) combination exactly once (over the four plans).
 68 runs, plus the ``control`` cell: 3 seeds of a nav unit whose errors are small (size 0.002)
 and whose noise is exactly what the default prior assumes (ARW 0.002 deg/sqrt(h), VRW
 5 ug/sqrt(Hz), bias instability 0.0005 deg/h and 2 ug over 1 h), small mounting error
 (0.05 deg, 2 mm), nominal timing, savage_srt@three_axis: it checks the world and the
 estimator agree where the estimator's assumptions hold. Runs are ordered seed index first,
-so ``--runs 16`` covers every cell once. ``--quick``: 5 runs (the control, and one run per
-class on the shorter plans: nav latency savage_srt@savage_2axis, tactical slow_joints with
-a large mounting error, industrial_mems point samples on a random plan, consumer_mems
-nominal on a random plan).
+so ``--runs 17`` covers every cell once. ``--quick``: 5 runs (the control, and one run per
+class on the shorter plans: nav 0.2/large latency savage_srt@savage_2axis, tactical
+1.0/large slow_joints savage_srt@three_axis, industrial_mems 1.0/none point samples on a
+random plan, consumer_mems 1.0/large nominal on a random plan).
 
 What is printed
 ---------------
@@ -141,7 +141,7 @@ COMBOS = ((0.2, 'none'), (1.0, 'none'), (0.2, 'large'), (1.0, 'large'))
 IMU_RATE_HZ = {'nav': 200.0, 'tactical': 200.0, 'industrial_mems': 100.0,
                'consumer_mems': 100.0, 'control': 100.0}
 QUICK = (('control', 0, 0), ('nav', 1, 0), ('tactical', 0, 3), ('industrial_mems', 3, 3),
-         ('consumer_mems', 3, 1))
+         ('consumer_mems', 3, 1))  # (unit, plan index, seed index): see the docstring
 RANDOM_PLAN_MOVES = 40
 _DEG_H = math.pi / 180.0 / 3600.0
 _UG = 1e-6 * 9.80665
@@ -196,8 +196,9 @@ def design() -> list[Case]:
             if s >= len(levels):
                 continue
             for p in range(len(PLANS)):
-                size, mount = COMBOS[s % 4]
-                cases.append(Case(u, p, s, size, mount, levels[(s + p) % len(levels)]))
+                t = (s + p) % len(levels)
+                size, mount = COMBOS[(t + p) % 4]
+                cases.append(Case(u, p, s, size, mount, levels[t]))
     return cases
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -480,3 +481,34 @@ def test_make_case_builds_the_documented_example(tmp_path: Path) -> None:
                          imu_rate_hz=50.0)
     assert again.data['imu_calibration']['gyroscope'] == \
         truth.data['imu_calibration']['gyroscope']
+
+
+# ------------------------------------------------------------------- the bench's design
+def test_bench_design_is_the_documented_fractional_design() -> None:
+    """Every timing level and (size, mounting) combination appears in every cell (unit
+    class, plan); per class each timing level meets each combination exactly once."""
+    import importlib.util
+    path = Path(__file__).resolve().parents[1] / 'bench' / 'bench_robustness.py'
+    spec = importlib.util.spec_from_file_location('bench_robustness', path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules['bench_robustness'] = bench  # dataclasses look their module up
+    spec.loader.exec_module(bench)
+    cases = bench.design()
+    main = [c for c in cases if c.unit != 'control']
+    assert len(main) == 68 and len(cases) == 71 and len({c.name for c in cases}) == 71
+    for u in bench.UNITS:
+        levels = bench.TIMINGS if u == 'nav' else bench.TIMINGS[:4]
+        mine = [c for c in main if c.unit == u]
+        for p in range(len(bench.PLANS)):
+            at_p = [c for c in mine if c.plan_index == p]
+            assert {c.timing for c in at_p} == set(levels)
+            assert {(c.size, c.mount) for c in at_p} == set(bench.COMBOS)
+        for t in levels:
+            combos = {(c.size, c.mount) for c in mine if c.timing == t}
+            assert combos == set(bench.COMBOS)
+    assert {c.cell for c in cases[:17]} == {c.cell for c in cases}  # seed index first
+    quick = [c for c in cases if (c.unit, c.plan_index, c.seed_index) in set(bench.QUICK)]
+    assert len(quick) == 5 and {c.unit for c in quick} == set(bench.UNITS) | {'control'}
+    drawn = bench.draw_case(next(c for c in main if c.timing == 'fast_jitter'))
+    assert drawn.config.imu_rate_hz == 2000.0 and drawn.config.receipt_delay_s is not None
