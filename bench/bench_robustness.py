@@ -79,6 +79,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -259,8 +260,9 @@ def draw_case(case: Case) -> Drawn:
     return Drawn(unit, mounting, cfg, int(rng.integers(0, 2 ** 31)))
 
 
+@functools.lru_cache(maxsize=1)
 def _source_hash() -> str:
-    """Hash of the generator's sources (a change invalidates the cache)."""
+    """Hash of the generator's sources (a change invalidates the cache), once per process."""
     h = hashlib.sha256()
     for mod in (world_sim, world_units):
         h.update(Path(str(mod.__file__)).read_bytes())

@@ -219,6 +219,9 @@ def test_interval_means_are_exact_at_zero_crossings(tmp_path: Path) -> None:
         t_gl = (k + 0.5) * dt + 0.5 * dt * x
         g, a, _, _ = inst(t_gl)
         plain = (w @ np.concatenate([g, a], axis=1)) / 2.0  # one rule, no split
+        world = np.concatenate([d.gyro_rad_s[k], d.accel_m_s2[k]])
+        if k % 4 and np.abs(plain - world).max() < 1e-12:
+            continue  # quadrature (slow) on the samples with a kink and every 4th other one
         for c in range(6):
             def fn(t: float, c: int = c) -> float:
                 g, a, _, _ = inst(np.array([t]))
@@ -340,8 +343,12 @@ def test_bag_reads_back_with_rosbags_and_with_our_reader(tmp_path: Path) -> None
 
 def test_truth_file_is_contract4_layout(tmp_path: Path) -> None:
     from imu_calib_ros.core.calibration import CalibrationResult
+    plan = tmp_path / 'short.yaml'
+    plan.write_text(yaml.safe_dump({'name': 'short', 'steps': [
+        {'dwell': {'duration_s': 2}}, {'move': {'joint': 'outer', 'by_deg': 90, 'duration_s': 2}},
+        {'move': {'joint': 'inner', 'by_deg': -90, 'duration_s': 2}}]}))
     bag, truth = make_case(tmp_path, unit='tactical', size=0.2, mount_deg=4.0, offset_mm=30,
-                           latency_ms=-12, plan='demo_short', seed=1, imu_rate_hz=20.0)
+                           latency_ms=-12, plan=str(plan), seed=1, imu_rate_hz=20.0)
     cal = CalibrationResult.load(truth.path)  # our CONTRACT 4 reader accepts it
     assert np.array_equal(cal.errors.gyro_scale_misalignment,
                           truth.errors.gyro_scale_misalignment)

@@ -716,16 +716,25 @@ def write_truth(path: str | os.PathLike[str], data: WorldData) -> Path:
 
 
 # ------------------------------------------------------------------------ convenience
+_PROFILES: dict[tuple[str, str, float], Any] = {}
+
+
 def joint_profile(plan: Any, fixture_path: str | os.PathLike[str]) -> Any:
     """``core.plans.build_profile`` of ``plan`` (name, path or Plan) on a fixture file.
 
     The nominal fixture maps the plan's IMU-axis steps onto joints (as an operator would,
-    without knowing the mounting error); only the joint motion q(t) is used.
+    without knowing the mounting error); only the joint motion q(t) is used. Profiles of
+    plans given by name or path are kept per (plan, fixture file, its mtime): mapping an
+    SRT plan solves every orientation by least squares (seconds).
     """
     from ..core.fixture import load_fixture
     from ..core.plans import Plan, build_profile, load_plan
-    plan_obj = plan if isinstance(plan, Plan) else load_plan(plan)
-    return build_profile(plan_obj, load_fixture(str(fixture_path)))
+    if isinstance(plan, Plan):
+        return build_profile(plan, load_fixture(str(fixture_path)))
+    key = (str(plan), str(Path(fixture_path).resolve()), Path(fixture_path).stat().st_mtime)
+    if key not in _PROFILES:
+        _PROFILES[key] = build_profile(load_plan(plan), load_fixture(str(fixture_path)))
+    return _PROFILES[key]
 
 
 def fixture_path(name_or_path: str) -> Path:
