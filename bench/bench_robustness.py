@@ -41,11 +41,13 @@ timing level ``t = (s + p) mod L`` with the (size, mounting) combination ``(t + 
 (0: 0.2/none, 1: 1.0/none, 2: 0.2/large, 3: 1.0/large). So in every cell every timing level
 appears once and every (size, mounting) combination at least once, and per unit class each
 timing level meets each (size, mounting) combination exactly once (over the four plans).
-68 runs, plus the ``control`` cell: 3 seeds of a nav unit whose errors are small (size 0.002)
+68 runs, plus the ``control`` cell (7 runs): a nav unit whose errors are small (size 0.002)
 and whose noise is exactly what the default prior assumes (ARW 0.002 deg/sqrt(h), VRW
 5 ug/sqrt(Hz), bias instability 0.0005 deg/h and 2 ug over 1 h), small mounting error
-(0.05 deg, 2 mm), nominal timing, savage_srt@three_axis: it checks the world and the
-estimator agree where the estimator's assumptions hold. Runs are ordered seed index first,
+(0.05 deg, 2 mm), savage_srt@three_axis; seeds 0-2 with nominal timing and plain joint
+messages check that the world and the estimator agree where the estimator's assumptions
+hold, seeds 3-6 run the four other timing levels (with the per-seed joint-message draws)
+on that benign unit, to tell timing failures from error-size failures. 75 runs in all. Runs are ordered seed index first,
 so ``--runs 17`` covers every cell once. ``--quick``: 5 runs (the control, and one run per
 class on the shorter plans: nav 0.2/large latency savage_srt@savage_2axis, tactical
 1.0/large slow_joints savage_srt@three_axis, industrial_mems 1.0/none point samples on a
@@ -189,9 +191,11 @@ class Case:
 def design() -> list[Case]:
     """The fractional design of the module docstring, seed index first."""
     cases: list[Case] = []
-    for s in range(5):
+    for s in range(7):
         if s < 3:
             cases.append(Case('control', 0, s, 0.002, 'small', 'nominal'))
+        elif s < 7:
+            cases.append(Case('control', 0, s, 0.002, 'small', TIMINGS[s - 2]))
         for u in UNITS:
             levels = TIMINGS if u == 'nav' else TIMINGS[:4]
             if s >= len(levels):
@@ -243,7 +247,7 @@ def draw_case(case: Case) -> Drawn:
                                            min_offset_m=0.002)
     else:
         mounting = Mounting()
-    ctrl = case.unit == 'control'
+    ctrl = case.unit == 'control' and case.timing == 'nominal'
     cfg = WorldConfig(
         imu_rate_hz=2000.0 if case.timing == 'fast_jitter' else IMU_RATE_HZ[case.unit],
         sample_type='point' if case.timing == 'point' else 'interval_mean',
@@ -433,9 +437,32 @@ def run_line(r: dict[str, Any], k: int, n: int) -> str:
     return line
 
 
+def _order(c: Case) -> tuple[int, int]:
+    return (('control',) + UNITS).index(c.unit), c.plan_index
+
+
+def factor_table(results: list[dict[str, Any]]) -> list[str]:
+    """Runs, exits 0 and passes per level of each factor (control excluded)."""
+    out = ['per factor level (control excluded): runs / exit 0 / passed']
+    main = [(Case(**r['case']), r) for r in results if r['case']['unit'] != 'control']
+    factors = (('unit', lambda c: c.unit), ('size', lambda c: f'{c.size:g}'),
+               ('mounting', lambda c: c.mount), ('timing', lambda c: c.timing),
+               ('plan', lambda c: f'{c.plan}@{c.fixture}'))
+    for name, key in factors:
+        levels: dict[str, list[int]] = {}
+        for c, r in main:
+            v = levels.setdefault(key(c), [0, 0, 0])
+            v[0] += 1
+            v[1] += r['status'] == 0
+            v[2] += passed(r)
+        out.append(f'  {name:9s} ' + '   '.join(f'{k} {v[0]}/{v[1]}/{v[2]}'
+                                                for k, v in levels.items()))
+    return out
+
+
 def cell_table(results: list[dict[str, Any]]) -> list[str]:
     cells: dict[str, list[dict[str, Any]]] = {}
-    for r in results:
+    for r in sorted(results, key=lambda r: (_order(Case(**r['case'])), r['name'])):
         c = Case(**r['case'])
         cells.setdefault(c.cell, []).append(r)
     out = [f'{"cell":42s} {"runs":>4s} {"exit0":>5s} {"pass":>4s} {"mean NEES":>10s} '
@@ -518,7 +545,7 @@ def main() -> int:
                 print(run_line(r, len(results), len(cases)) + f'  [bag {gen}]', flush=True)
     wall = time.perf_counter() - t0
     print()
-    for ln in cell_table(sorted(results, key=lambda r: r['name'])):
+    for ln in cell_table(results) + factor_table(results):
         print(ln)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=1))

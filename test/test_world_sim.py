@@ -503,7 +503,8 @@ def test_bench_design_is_the_documented_fractional_design() -> None:
     spec.loader.exec_module(bench)
     cases = bench.design()
     main = [c for c in cases if c.unit != 'control']
-    assert len(main) == 68 and len(cases) == 71 and len({c.name for c in cases}) == 71
+    assert len(main) == 68 and len(cases) == 75 and len({c.name for c in cases}) == 75
+    assert {c.timing for c in cases if c.unit == 'control'} == set(bench.TIMINGS)
     for u in bench.UNITS:
         levels = bench.TIMINGS if u == 'nav' else bench.TIMINGS[:4]
         mine = [c for c in main if c.unit == u]
