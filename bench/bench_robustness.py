@@ -47,8 +47,8 @@ and whose noise is exactly what the default prior assumes (ARW 0.002 deg/sqrt(h)
 (0.05 deg, 2 mm), savage_srt@three_axis; seeds 0-2 with nominal timing and plain joint
 messages check that the world and the estimator agree where the estimator's assumptions
 hold, seeds 3-6 run the four other timing levels (with the per-seed joint-message draws)
-on that benign unit, to tell timing failures from error-size failures. 75 runs in all. Runs are ordered seed index first,
-so ``--runs 17`` covers every cell once. ``--quick``: 5 runs (the control, and one run per
+on that benign unit, to tell timing failures from error-size failures. 75 runs in all.
+Runs are ordered seed index first, so ``--runs 17`` covers every cell once. ``--quick``: 5 runs (the control, and one run per
 class on the shorter plans: nav 0.2/large latency savage_srt@savage_2axis, tactical
 1.0/large slow_joints savage_srt@three_axis, industrial_mems 1.0/none point samples on a
 random plan, consumer_mems 1.0/large nominal on a random plan).
