@@ -48,10 +48,11 @@ and whose noise is exactly what the default prior assumes (ARW 0.002 deg/sqrt(h)
 messages check that the world and the estimator agree where the estimator's assumptions
 hold, seeds 3-6 run the four other timing levels (with the per-seed joint-message draws)
 on that benign unit, to tell timing failures from error-size failures. 75 runs in all.
-Runs are ordered seed index first, so ``--runs 17`` covers every cell once. ``--quick``: 5 runs (the control, and one run per
-class on the shorter plans: nav 0.2/large latency savage_srt@savage_2axis, tactical
-1.0/large slow_joints savage_srt@three_axis, industrial_mems 1.0/none point samples on a
-random plan, consumer_mems 1.0/large nominal on a random plan).
+Runs are ordered seed index first, so ``--runs 17`` covers every cell once. ``--quick``:
+5 runs (the control, and one run per class on the shorter plans: nav 0.2/large latency
+savage_srt@savage_2axis, tactical 1.0/large slow_joints savage_srt@three_axis,
+industrial_mems 1.0/none point samples on a random plan, consumer_mems 1.0/large nominal
+on a random plan).
 
 What is printed
 ---------------
@@ -59,8 +60,10 @@ Per run: the case, exit status, wall time, targets met, max |error/sigma| with i
 parameter (over the estimated parameters; ``held`` counts fixed parameters whose truth lies
 beyond 3 assumed sigma), samples/s (IMU samples / wall time of the command), and for a
 non-zero exit the command's error line and the exact command to reproduce it.
-Targets: issue 3's, from bench/bench_accuracy.py (NAV_TARGETS for nav and the control;
-MEMS_TARGETS for tactical and the MEMS classes), applied only to the groups the plan excites
+Targets: issue 3's, read from bench/bench_accuracy.py of ``--repo`` (its NAV_TARGETS and
+MEMS_TARGETS assignments are evaluated, the module is not imported): NAV_TARGETS for nav
+and the control, MEMS_TARGETS for tactical and the MEMS classes, applied only to the
+groups the plan excites
 (:data:`EXCITES`; the nav gyro-bias sigma target of 0.005 deg/h was set for the 34-min
 ``srt_kozlov_bias`` with its static segment, so it applies to no plan here). A target is met
 when the group's largest |error| and largest sigma are within it ('both') or its sigma is
@@ -110,8 +113,9 @@ from imu_calib_ros.testing.world_cases import compare_calibration  # noqa: E402
 from imu_calib_ros.testing.world_sim import Mounting, WorldConfig  # noqa: E402
 from imu_calib_ros.testing.world_units import Unit, UnitNoise, draw_unit  # noqa: E402
 
-# issue 3's targets, as in bench/bench_accuracy.py (NAV_TARGETS, MEMS_TARGETS): group ->
-# (limit in the group's engineering unit, 'both' = error and sigma, or 'sigma' only)
+# issue 3's targets: read from bench/bench_accuracy.py (NAV_TARGETS, MEMS_TARGETS) by
+# targets_from_bench_accuracy(); these copies are used only if that file cannot be read.
+# group -> (limit in the group's engineering unit, 'both' = error and sigma, or 'sigma' only)
 NAV_TARGETS: dict[str, tuple[float, str]] = {
     'gyro_scale': (1.0, 'both'), 'gyro_misalignment': (1.0, 'both'),
     'accel_misalignment': (2.0, 'both'), 'accel_bias': (2.0, 'both'),
@@ -124,6 +128,30 @@ MEMS_TARGETS: dict[str, tuple[float, str]] = {
     'gyro_scale': (300.0, 'both'), 'accel_scale': (300.0, 'both'),
     'gyro_misalignment': (300.0, 'both'), 'accel_misalignment': (300.0, 'both'),
 }
+
+
+def targets_from_bench_accuracy(path: Path = REPO / 'bench' / 'bench_accuracy.py'
+                                ) -> tuple[dict[str, tuple[float, str]],
+                                           dict[str, tuple[float, str]], str]:
+    """NAV_TARGETS and MEMS_TARGETS as bench_accuracy.py defines them, without importing it
+    (it imports the estimator): only those two assignments are evaluated."""
+    import ast
+    try:
+        tree = ast.parse(path.read_text())
+        keep = [n for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign)) and
+                getattr(n.targets[0] if isinstance(n, ast.Assign) else n.target, 'id', '')
+                in ('NAV_TARGETS', 'MEMS_TARGETS')]
+        ns: dict[str, Any] = {}
+        for n in keep:  # literal dicts of (number expression, str): no names, no builtins
+            assert n.value is not None
+            name = getattr(n.targets[0] if isinstance(n, ast.Assign) else n.target, 'id')
+            code = compile(ast.Expression(n.value), str(path), 'eval')
+            ns[name] = eval(code, {'__builtins__': {}})
+        return ns['NAV_TARGETS'], ns['MEMS_TARGETS'], str(path)
+    except (OSError, SyntaxError, KeyError, AssertionError, NameError, TypeError) as exc:
+        return NAV_TARGETS, MEMS_TARGETS, f'built-in copies ({type(exc).__name__} reading {path})'
+
+
 _SRT = {'gyro_scale', 'gyro_misalignment', 'gyro_asymmetry', 'accel_bias', 'accel_scale',
         'accel_misalignment', 'accel_asymmetry', 'gyro_bias_mems'}
 #: groups each plan excites ('gyro_bias_mems': the MEMS gyro-bias target, any plan;
@@ -320,14 +348,17 @@ def replay_command(python: str, bag: Path, fixture: Path, out: Path) -> list[str
             '--output', str(out)]
 
 
-def evaluate(case: Case, calib: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:
+def evaluate(case: Case, calib: dict[str, Any], truth: dict[str, Any],
+             targets_by_kind: tuple[dict[str, tuple[float, str]],
+                                    dict[str, tuple[float, str]]] = (NAV_TARGETS, MEMS_TARGETS)
+             ) -> dict[str, Any]:
     """Targets, honesty figures of one successful run."""
     rows = compare_calibration(calib, truth)
     est = [r for r in rows if not r.fixed and r.sigma > 0.0]
     held = [r for r in rows if r.fixed or r.sigma == 0.0]
     z = np.array([r.z for r in est])
     kind = 'nav' if case.unit in ('nav', 'control') else 'mems'
-    targets = NAV_TARGETS if kind == 'nav' else MEMS_TARGETS
+    targets = targets_by_kind[0] if kind == 'nav' else targets_by_kind[1]
     excited = EXCITES[case.plan]
     met: dict[str, bool] = {}
     for group, (lim, what) in targets.items():
@@ -399,7 +430,8 @@ def run_case(case: Case, cache: str, python: str, repo: str, keep: str | None,
         (out_dir / 'reproduce.sh').write_text(
             f'#!/bin/sh\ncd {out_dir}\nPYTHONPATH={repo} {" ".join(cmd)}\n')
     if status == 0 and out.exists():
-        res.update(evaluate(case, yaml.safe_load(out.read_text()), truth))
+        nav_t, mems_t, _ = targets_from_bench_accuracy(Path(repo) / 'bench' / 'bench_accuracy.py')
+        res.update(evaluate(case, yaml.safe_load(out.read_text()), truth, (nav_t, mems_t)))
     elif status == 0:
         res['status'] = 'no-file'
     if not keep:
@@ -529,8 +561,9 @@ def main() -> int:
         return 0
     Path(a.cache).mkdir(parents=True, exist_ok=True)
     repo = str(Path(a.repo).resolve())
-    print(f'robustness bench: {len(cases)} runs, jobs {a.jobs}, repo {repo}, cache {a.cache}',
-          flush=True)
+    source = targets_from_bench_accuracy(Path(repo) / 'bench' / 'bench_accuracy.py')[2]
+    print(f'robustness bench: {len(cases)} runs, jobs {a.jobs}, repo {repo}, cache {a.cache}; '
+          f'targets from {source}', flush=True)
     t0 = time.perf_counter()
     results: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:

@@ -520,3 +520,15 @@ def test_bench_design_is_the_documented_fractional_design() -> None:
     assert len(quick) == 5 and {c.unit for c in quick} == set(bench.UNITS) | {'control'}
     drawn = bench.draw_case(next(c for c in main if c.timing == 'fast_jitter'))
     assert drawn.config.imu_rate_hz == 2000.0 and drawn.config.receipt_delay_s is not None
+
+
+def test_bench_reads_the_targets_from_bench_accuracy() -> None:
+    import importlib
+    bench = sys.modules.get('bench_robustness')
+    if bench is None:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
+        bench = importlib.import_module('bench_robustness')
+    nav, mems, source = bench.targets_from_bench_accuracy()
+    assert source.endswith('bench_accuracy.py')
+    assert nav['gyro_scale'] == (1.0, 'both') and mems['gyro_bias'][1] == 'both'
+    assert set(nav) >= {'gyro_scale', 'accel_bias', 'size_effect', 'gyro_bias'}
