@@ -423,8 +423,9 @@ def run_case(case: Case, cache: str, python: str, repo: str, keep: str | None,
         'case': dataclasses.asdict(case), 'name': case.name, 'status': status, 'wall_s': wall,
         'gen_s': gen_s, 'cached': cached, 'samples': n_imu, 'samples_per_s': n_imu / wall,
         'described': truth['imu_calibration']['provenance'].get('described', ''),
-        'command': ' '.join(cmd), 'error_line': _error_line(stderr) if status else '',
-        'pythonpath': repo}
+        # without --keep the output directory is temporary: reproduce into the current one
+        'command': ' '.join(cmd if keep else cmd[:-1] + ['calib.yaml']),
+        'error_line': _error_line(stderr) if status else '', 'pythonpath': repo}
     if keep:
         (out_dir / 'replay.log').write_text(f'$ {" ".join(cmd)}\n{stdout}\n{stderr}')
         (out_dir / 'reproduce.sh').write_text(
@@ -482,7 +483,8 @@ def factor_table(results: list[dict[str, Any]]) -> list[str]:
                ('plan', lambda c: f'{c.plan}@{c.fixture}'))
     for name, key in factors:
         levels: dict[str, list[int]] = {}
-        for c, r in main:
+        for c, r in sorted(main, key=lambda cr: (_order(cr[0]), TIMINGS.index(cr[0].timing),
+                                                 cr[0].size, cr[0].mount != 'none')):
             v = levels.setdefault(key(c), [0, 0, 0])
             v[0] += 1
             v[1] += r['status'] == 0
