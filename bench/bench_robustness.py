@@ -478,13 +478,14 @@ def factor_table(results: list[dict[str, Any]]) -> list[str]:
     """Runs, exits 0 and passes per level of each factor (control excluded)."""
     out = ['per factor level (control excluded): runs / exit 0 / passed']
     main = [(Case(**r['case']), r) for r in results if r['case']['unit'] != 'control']
-    factors = (('unit', lambda c: c.unit), ('size', lambda c: f'{c.size:g}'),
-               ('mounting', lambda c: c.mount), ('timing', lambda c: c.timing),
-               ('plan', lambda c: f'{c.plan}@{c.fixture}'))
-    for name, key in factors:
+    factors = (('unit', lambda c: c.unit, list(UNITS)),
+               ('size', lambda c: f'{c.size:g}', ['0.2', '1']),
+               ('mounting', lambda c: c.mount, ['none', 'large']),
+               ('timing', lambda c: c.timing, list(TIMINGS)),
+               ('plan', lambda c: f'{c.plan}@{c.fixture}', [f'{p}@{f}' for p, f in PLANS]))
+    for name, key, order in factors:
         levels: dict[str, list[int]] = {}
-        for c, r in sorted(main, key=lambda cr: (_order(cr[0]), TIMINGS.index(cr[0].timing),
-                                                 cr[0].size, cr[0].mount != 'none')):
+        for c, r in sorted(main, key=lambda cr: order.index(key(cr[0]))):
             v = levels.setdefault(key(c), [0, 0, 0])
             v[0] += 1
             v[1] += r['status'] == 0
