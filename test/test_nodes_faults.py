@@ -146,8 +146,11 @@ def test_samples_lost_upstream_are_counted(ros: Node, tmp_path: Path) -> None:
     """Stamps missing from the stream (CONTRACT 1: a gap of more than 1.5 periods) are
     counted in ``missing_imu``: one lost among the intervals the rate is measured from (no
     ``imu_rate_hz`` given), five in a row and one more later; the rest is published."""
+    # the filter must run on these few seconds for a last good estimate: no coarse start
+    # (it needs a minute of data or a save), the grade's prior
     proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0,
-                  'estimator_mode': 'thread'}, tmp_path)
+                  'estimator_mode': 'thread', 'imu_grade': 'nav_grade',
+                  'estimator.auto_start': False, 'estimator.noise_source': 'grade'}, tmp_path)
     w = Wiring(ros)
     skip = frozenset({10, 100, 101, 102, 103, 104, 250})
     try:
@@ -399,8 +402,11 @@ def test_rejections_counted_once_by_the_guard_under_their_own_labels(ros: Node,
     rejection; the WARN counts each input once. Before: the guard's counts were labelled
     ``rejected.gate.*``, the estimator's copies of them were added again
     (``rejected.estimator.joint_out_of_order``), and ``estimator.gaps`` counted as rejected."""
+    # the filter must run on these few seconds for a last good estimate: no coarse start
+    # (it needs a minute of data or a save), the grade's prior
     proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0,
-                  'estimator_mode': 'thread'}, tmp_path)
+                  'estimator_mode': 'thread', 'imu_grade': 'nav_grade',
+                  'estimator.auto_start': False, 'estimator.noise_source': 'grade'}, tmp_path)
     w = Wiring(ros)
     n, period = 600, 5_000_000
     skip = {300, 301, 302}
@@ -451,8 +457,11 @@ def test_diagnostics_a_person_reads(ros: Node, tmp_path: Path) -> None:
     clears; zero counters are left out, no counter is listed twice, and the last good
     estimate is a few short values (before: a 2,500-character repr)."""
     from diagnostic_msgs.msg import DiagnosticStatus
+    # the filter must run on these few seconds for a last good estimate: no coarse start
+    # (it needs a minute of data or a save), the grade's prior
     proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0,
-                  'estimator_mode': 'thread'}, tmp_path)
+                  'estimator_mode': 'thread', 'imu_grade': 'nav_grade',
+                  'estimator.auto_start': False, 'estimator.noise_source': 'grade'}, tmp_path)
     w = Wiring(ros)
     try:
         assert w.wait_matched(), stop(proc)

@@ -14,13 +14,15 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..core.errors import InputError
-from ..core.reorder import ReorderStats
 from ..core.units import ENGINEERING
-from ..msg_adapters.bag import DEFAULT_REORDER_WINDOW_S
+from ..msg_adapters import DEFAULT_REORDER_WINDOW_S
 from . import add_topic_arguments, check_output_file
+
+if TYPE_CHECKING:
+    from ..core.reorder import ReorderStats
 
 METHODS = ('ekf', 'srt', 'oscillation')
 UNITS = tuple((key, 1.0 / si, unit) for key, (_, si, unit) in ENGINEERING.items())

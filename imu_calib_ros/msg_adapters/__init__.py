@@ -4,3 +4,8 @@
 types and back; ``bag`` reads and writes ROS 2 bags with rosbags. Neither imports rclpy at
 module import time.
 """
+
+#: Longest wait, in log (receipt) time, for a message to be put back in header-stamp order
+#: when a bag is read (rosbag2 logs receipt time; issue 17). Here, not in ``bag``, so that the
+#: CLI can show it in ``--help`` without importing numpy.
+DEFAULT_REORDER_WINDOW_S = 0.5

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from ..core.errors import BagError, InputError
 from ..core.reorder import BatchReorder, ReorderStats
 from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
+from . import DEFAULT_REORDER_WINDOW_S
 from .convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, ImuCovariances, NS_PER_S,
                       imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg,
                       joint_state_msg_from_sample)
@@ -52,7 +53,6 @@ DEFAULT_IMU_TOPIC = '/imu/data_raw'
 DEFAULT_JOINT_TOPIC = '/joint_states'
 #: Default longest wait of a message for its topic's stamp order [s of log time]: far above
 #: rosbag2's receipt jitter (milliseconds), far below a looping bag's backward jump.
-DEFAULT_REORDER_WINDOW_S = 0.5
 Storage = Literal['mcap', 'sqlite3']
 
 

@@ -1,6 +1,6 @@
 """The "world": an independent turntable/IMU bag generator that follows CONTRACT sections 1-3.
 
-This is a test oracle written from ``../shared/spec/CONTRACT.md`` alone. It shares no code
+This is a test oracle written from ``docs/CONTRACT.md`` alone. It shares no code
 with ``core/simulator.py``, ``core/fixture.py``, ``core/sensor_model.py``,
 ``core/strapdown.py`` or ``core/estimator``, so an assumption those modules share cannot hide
 here. The only imports from the package are ``core.plans`` (the joint motion q(t) is the
