@@ -127,6 +127,17 @@ def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.
     trim = int(STATIC_TRIM_S * 1e9)
     out = []
     for a, b in zip(starts, stops):
+        if (t_ns[b] - t_ns[a]) * 1e-9 < min_static_s:
+            continue
+        # the longest stretch within tol of the run's median: a slow creep at either end
+        # (a move's tail below tol per sample) is cut instead of losing the window
+        near = np.all(np.abs(q[a:b + 1] - np.median(q[a:b + 1], axis=0)) <= tol_rad, axis=1)
+        edges = np.diff(np.concatenate([[0], near.astype(np.int8), [0]]))
+        ups, downs = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        if not len(ups):
+            continue
+        k = int(np.argmax(downs - ups))
+        a, b = a + int(ups[k]), a + int(downs[k]) - 1
         t0, t1 = int(t_ns[a]) + trim, int(t_ns[b]) - trim
         if (t1 - t0) * 1e-9 < min_static_s:
             continue

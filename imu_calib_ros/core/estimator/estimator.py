@@ -222,13 +222,17 @@ class CalibrationEstimator:
         self._nominal_dt = 0.0
         self._n = 1
         self._q1_s: FloatArray | None = None
+        self._bias_q = (0.0, 0.0)
+        self._bias_q_seed = (0.0, 0.0)
+        self._bias_q_scale = 1.0
         self.counters: dict[str, int] = {
             'imu_samples': 0, 'joint_samples': 0, 'imu_processed': 0, 'chunks': 0,
             'imu_dropped_before_alignment': 0, 'imu_out_of_order': 0, 'imu_non_finite': 0,
             'joint_out_of_order': 0, 'joint_missing_names': 0, 'joint_non_finite': 0, 'gaps': 0,
             'attitude_updates_without_joints': 0,
             'imu_dropped_at_gap': 0, 'gaps_bridged': 0, 'gaps_reinitialised': 0,
-            'divergences': 0, 'restarts': self.restarts, 'realignments': 0}
+            'divergences': 0, 'restarts': self.restarts, 'realignments': 0,
+            'bias_noise_adaptations': 0}
         self._t0_ns: int | None = None
         self._t_last_ns: int | None = None
         # bad input and faults (issue 6, core/input_guard.py)
@@ -885,6 +889,7 @@ class CalibrationEstimator:
             self._declare_divergence(reason)
         else:
             self._good.append(self.estimate_state())
+            self._adapt_bias_noise()
 
     def _nis_window_reason(self) -> str | None:
         """Gate rejections or mean NIS over the last ``nis_window`` updates out of bounds."""
@@ -1139,9 +1144,45 @@ class CalibrationEstimator:
         if self.start is not None:  # item 5: the random walk the data show, if larger
             qg = max(qg, self.start.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
             qa = max(qa, self.start.accel_bias_random_walk_m_s3_rt_hz ** 2)
-        k = cfg.noise_scale
+        self._bias_q = (max(qg, self._bias_q_seed[0]), max(qa, self._bias_q_seed[1]))
+        self._set_process_noise()
+
+    def _set_process_noise(self) -> None:
+        """Q per second (scaled) from the white noise and the bias walk x its adaptation."""
+        lay = self.layout
+        k = self.config.noise_scale
+        qg, qa = (q * self._bias_q_scale for q in self._bias_q)
         q1 = process_noise(lay, 1.0, k * self._noise[0], k * self._noise[1], qg, qa)
         self._q1_s = np.diag(np.diag(q1) / lay.scale ** 2)
+
+    def _adapt_bias_noise(self) -> None:
+        """Item 5: a bias drift nobody declared shows as innovations larger than the filter
+        predicts. When the mean NIS per dof over the last ``nis_window`` updates stands out of
+        its chi-square spread (4 sigma) or gated updates appear, the biases' random walk is
+        doubled (seeded, when none was measured, at 1e-3 of the white noise density per
+        sqrt(s), gyro, and 1e-2, accelerometer): covariance matching, one way only."""
+        c = self._filter.counters if self._filter is not None else None
+        hist = self._nis_hist
+        if c is None or len(hist) < 2:
+            return
+        a0, r0, s0 = hist[0]
+        a1, r1, s1 = hist[-1]
+        acc, rej = a1 - a0, r1 - r0
+        if acc + rej < self.guard_config.nis_window:
+            return
+        mean = (s1 - s0) / max(acc, 1) / 3.0
+        if mean < 1.0 + 4.0 * math.sqrt(2.0 / (3.0 * max(acc, 1))) and rej == 0:
+            return
+        if not any(self._bias_q):  # kept across re-alignments, like the scale
+            self._bias_q_seed = ((1e-3 * self._noise[0]) ** 2, (1e-2 * self._noise[1]) ** 2)
+            self._bias_q = self._bias_q_seed
+        elif self._bias_q_scale < 2.0 ** 30:
+            self._bias_q_scale *= 2.0
+        else:
+            return
+        self.counters['bias_noise_adaptations'] += 1
+        self._set_process_noise()
+        self._nis_hist.clear()  # judge the new Q on fresh updates
 
     # ------------------------------------------------------------------ processing
     def _process(self, final: bool = False) -> None:
