@@ -7,8 +7,8 @@ it) and returns a start point with honest sigmas:
 
 1. stationary windows from the joint states (every joint still for ``min_static_s``);
 2. white-noise densities of gyros and accelerometers in those windows (Allan deviation at the
-   sample period, ``allantools``), and the bias random-walk level from revisits of a pose
-   (method of moments, no model needed; item 5);
+   sample period, ``allantools``), and the bias random-walk level from how the window
+   residuals wander with the time between windows (item 5);
 3. the IMU-to-encoder time offset: the gyro rate magnitude against the encoder rate magnitude
    (both invariant to the unknown mounting and nearly to the scale errors), least squares
    over a grid of shifts refined by a parabola (METHODS.md: cross-correlation);
@@ -167,29 +167,27 @@ def white_noise_density(x: FloatArray, dt_s: float) -> float:
 
 
 def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: float) -> float:
-    """Bias random-walk density from revisits of one pose (item 5): between two windows at the
-    same joint angles (within 0.5 mrad) the attitude, the earth rate and every scale error are
-    the same, so the change of the window residual (mean output minus the coarse model, which
-    removes what the small pose difference changes) is ``E[d^2] = s_1^2 + s_2^2 + q dt``:
-    white noise of the two means plus the walk over the time between. The median over
-    consecutive revisits of each pose; 0 with fewer than three revisits or when nothing
-    stands out of the white noise."""
-    ratio, rate = [], []
-    for j in range(1, len(wins)):
-        for i in range(j - 1, -1, -1):  # the latest earlier visit of this pose
-            dq = np.angle(np.exp(1j * (wins[j].q_rad - wins[i].q_rad)))
-            if np.max(np.abs(dq)) < 5e-4:
-                d2 = float(np.mean((resid[j] - resid[i]) ** 2))
-                s2 = white ** 2 / dt * (1 / wins[i].n + 1 / wins[j].n)
-                span = (wins[j].t0_ns + wins[j].t1_ns - wins[i].t0_ns - wins[i].t1_ns) * 0.5e-9
-                ratio.append(d2 / s2)
-                rate.append((d2 - s2) / span)
-                break
-    # medians, so that one odd pair is not a drift; a walk must stand out of the white
-    # noise (the ratio is chi-square(3)/3 around 1 without one)
-    if len(ratio) < 3 or float(np.median(ratio)) < 1.5:
+    """Bias random-walk density from how the stationary-window residuals wander (item 5).
+
+    Between two windows the residual (mean output minus the coarse model) changes by white
+    noise, by the coarse model's pose-dependent misfit (a constant scatter, whatever the time
+    between) and by the bias walk (growing with the time between): ``E[(r_j - r_i)^2] -
+    s_i^2 - s_j^2 = a + q |t_j - t_i|`` over all pairs, fitted by least squares. Only a slope
+    that stands out (t > 3) counts; a Gauss-Markov instability shows as the walk over the
+    plan's length. 0 with fewer than four windows.
+    """
+    if len(wins) < 4:
         return 0.0
-    return math.sqrt(max(float(np.median(rate)), 0.0))
+    tm = np.array([(w.t0_ns + w.t1_ns) * 0.5e-9 for w in wins])
+    s2 = white ** 2 / dt / np.array([w.n for w in wins], float)
+    i, j = np.triu_indices(len(wins), 1)
+    y = np.mean((resid[j] - resid[i]) ** 2, axis=1) - s2[i] - s2[j]
+    X = np.column_stack([np.ones(len(i)), np.abs(tm[j] - tm[i])])
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    r = y - X @ beta
+    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1)
+    q, sq = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
+    return math.sqrt(q) if q > 0 and q > 3 * sq else 0.0
 
 
 def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatArray:
@@ -426,16 +424,19 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         for k, (i, j) in enumerate(em.OFF6):
             theta_a[c + k] = Ka[i, j]
             sig_a[c + k] = math.hypot(sA[i, j], mount_sig)
-    # --- bias random walk (item 5) from revisits of a pose
+    # --- bias random walk (item 5) from how the window residuals wander with time
     rw_g = rw_a = 0.0
     if wins:
         R_w = fixture.R_enu_imu(np.array([win.q_rad for win in wins]))
         pred_g = np.einsum('nki,k->ni', R_w, fixture.site.omega_ie_enu) @ B.T
         pred_a = np.einsum('nki,k->ni', R_w, np.array([0.0, 0.0, g])) @ A.T
+        fm_w = np.array([w.accel_mean_m_s2 for w in wins])
+        pred_g = pred_g + theta_g[em.gyro_cols('gyro_bias')] \
+            + fm_w @ theta_g[em.gyro_cols('gyro_g_sensitivity')].reshape(3, 3).T
+        pred_a = pred_a + theta_a[em.accel_cols('accel_bias')]
         rw_g = _random_walk(wins, np.array([w.gyro_mean_rad_s for w in wins]) - pred_g,
                             noise_g, dt)
-        rw_a = _random_walk(wins, np.array([w.accel_mean_m_s2 for w in wins]) - pred_a,
-                            noise_a, dt)
+        rw_a = _random_walk(wins, fm_w - pred_a, noise_a, dt)
     # an error the data did not measure starts at its prior mean (none), whatever the
     # mounting rotation mixed into it
     theta_g = np.where(np.isfinite(sig_g), theta_g, 0.0)

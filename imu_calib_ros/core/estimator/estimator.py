@@ -81,6 +81,13 @@ COARSE_FLOOR: dict[str, float] = {
     'accel_quadratic': 1e-4, 'size_effect': 2e-2}
 
 
+# Least bias random walk of a MEMS unit without a grade, per sqrt(s), as a fraction of its
+# white-noise density: gyro 0.035 (a Gauss-Markov instability of N/4 rad/s over 100 s, e.g.
+# 0.42 deg/sqrt(h) -> 6 deg/h; MTi-1 datasheet 10 deg/h, industrial units 1-3 deg/h at 0.1-0.3
+# deg/sqrt(h)), accelerometer 0.015 (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035).
+MEMS_BIAS_WALK = (0.035, 0.015)
+
+
 def prior_sigmas(grade: Any, config: EstimatorConfig,
                  start: CoarseStart | None = None) -> dict[str, FloatArray]:
     """One-sigma prior of every group in SI.
@@ -1141,9 +1148,15 @@ class CalibrationEstimator:
                   + gr.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
             qa = (2.0 * gr.accel_bias_instability_m_s2 ** 2 / gr.accel_bias_correlation_s
                   + gr.accel_bias_random_walk_m_s3_rt_hz ** 2)
-        if self.start is not None:  # item 5: the random walk the data show, if larger
-            qg = max(qg, self.start.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
-            qa = max(qa, self.start.accel_bias_random_walk_m_s3_rt_hz ** 2)
+        st = self.start
+        if st is not None:  # item 5: the random walk the data show, if larger
+            qg = max(qg, st.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
+            qa = max(qa, st.accel_bias_random_walk_m_s3_rt_hz ** 2)
+            if gr is None and st.gyro_noise_rad_s_rt_hz > self.config.aiding_gyro_noise_rad_s_rt_hz:
+                # a MEMS unit and no grade: never assume its biases constant (the stationary
+                # windows of a short plan cannot show a 100 s instability)
+                qg = max(qg, (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2)
+                qa = max(qa, (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2)
         self._bias_q = (max(qg, self._bias_q_seed[0]), max(qa, self._bias_q_seed[1]))
         self._set_process_noise()
 
