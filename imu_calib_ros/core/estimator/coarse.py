@@ -20,9 +20,8 @@ it) and returns a start point with honest sigmas:
    the covariance is cluster-robust over 1 s blocks (the residuals are not white: model
    error and encoder interpolation);
 5. accelerometers from the window means (Tedaldi et al.'s multi-position idea, linear here
-   because the encoders give the attitude): ``f_meas = A g_nom + ba`` with
-   ``A = (I + Ka) R_m^T``
-   (asymmetry and quadratic terms left to the filter).
+   because the encoders give the attitude): ``f_meas = A g_nom + aa |f| + ba`` with
+   ``A = (I + Ka) R_m^T`` (the quadratic term left to the filter).
 
 Hand-written because no library fits gyro and accelerometer errors to encoder kinematics;
 the pieces (CubicSpline, polar, lstsq, allantools) are scipy's/allantools'.
@@ -400,23 +399,30 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         nw = np.array([win.n for win in wins], float)
         A = np.zeros((3, 3))
         sA = np.zeros((3, 3))
-        Xa = np.hstack([g_nom, np.ones((len(wins), 1))])
-        # window means weighted by their white noise; a weak prior (A = I +- 3 %, bias
-        # 100 mg) keeps what the windows do not span; scale asymmetry and quadratic terms are
-        # left to the filter (with the six axis-up/down positions of most plans |f_i| is
-        # collinear with bias and scale)
-        sd0 = np.array([3e-2, 3e-2, 3e-2, 1.0])
+        fits: list[tuple[FloatArray, FloatArray]] = []
+        # window means weighted by their white noise; a weak prior (A = I +- 3 %, asymmetry
+        # 0.3 %, bias 100 mg) keeps what the windows do not separate (with only the six
+        # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
+        # unmeasured); the quadratic term is left to the filter
+        sd0 = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
         rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
-        for i in range(3):
-            beta0 = np.zeros(4)
-            beta0[i] = 1.0
-            beta, var = _cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
-                                       beta0, sd0, noise_a ** 2 / dt)
+        Xa = np.hstack([g_nom, np.zeros((len(wins), 1)), np.ones((len(wins), 1))])
+        for _ in range(2):  # |f_i| regressor from the previous round's prediction
+            fits = []
+            for i in range(3):
+                Xa[:, 3] = np.abs(g_nom @ A[i]) if A.any() else np.abs(g_nom[:, i])
+                beta0 = np.zeros(5)
+                beta0[i] = 1.0
+                fits.append(_cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
+                                           beta0, sd0, noise_a ** 2 / dt))
+            A = np.array([f_[0][0:3] for f_ in fits])
+        for i, (beta, var) in enumerate(fits):
             sd = np.sqrt(var)
-            A[i] = beta[0:3]
             sA[i] = sd[0:3]
-            theta_a[em.accel_cols('accel_bias').start + i] = beta[3]
-            sig_a[em.accel_cols('accel_bias').start + i] = sd[3]
+            theta_a[em.accel_cols('accel_asymmetry').start + i] = beta[3]
+            sig_a[em.accel_cols('accel_asymmetry').start + i] = sd[3]
+            theta_a[em.accel_cols('accel_bias').start + i] = beta[4]
+            sig_a[em.accel_cols('accel_bias').start + i] = sd[4]
         Ka = A @ R_m - np.eye(3)
         theta_a[em.accel_cols('accel_scale')] = np.diag(Ka)
         sig_a[em.accel_cols('accel_scale')] = np.diag(sA)

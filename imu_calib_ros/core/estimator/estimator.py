@@ -1409,7 +1409,10 @@ class CalibrationEstimator:
             'mounting_rotvec_rad': [float(v) for v in est.mounting_rotvec_rad],
             'time_offset_s': float(est.theta_accel[em.accel_cols('time_offset')][0]),
             'estimated_groups': list(lay.groups),
+            'attitude_aiding': self.attitude_aiding,
         }
+        if self.start is not None:  # what the data chose (issue 11)
+            out['coarse_start'] = self.start.summary()
         for g in ('lever_arm', 'mounting', 'time_offset'):
             if g in lay.slices:
                 sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
