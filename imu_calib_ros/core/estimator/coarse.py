@@ -175,7 +175,8 @@ def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: 
     noise, by the coarse model's pose-dependent misfit (a constant scatter, whatever the time
     between) and by the bias walk (growing with the time between): ``E[(r_j - r_i)^2] -
     s_i^2 - s_j^2 = a + q |t_j - t_i|`` over all pairs, fitted by least squares. Only a slope
-    that stands out (t > 3) counts; a Gauss-Markov instability shows as the walk over the
+    that stands out (t > 3, its standard error that of n windows, not of the n^2/2 pairs
+    that share them) counts; a Gauss-Markov instability shows as the walk over the
     plan's length. 0 with fewer than four windows.
     """
     if len(wins) < 4:
@@ -187,7 +188,8 @@ def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: 
     X = np.column_stack([np.ones(len(i)), np.abs(tm[j] - tm[i])])
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ beta
-    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1)
+    # the n (n - 1) / 2 pairs share n windows: the standard error as if from n samples
+    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / len(wins)
     q, sq = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
     return math.sqrt(q) if q > 0 and q > 3 * sq else 0.0
 
