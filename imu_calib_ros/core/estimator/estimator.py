@@ -50,8 +50,8 @@ from .buffers import ImuBuffer, JointBuffer, point_to_mean
 from .coarse import CoarseStart
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
-from .health import (NisWindow, numerical_fault, restart_covariance, rollback_covariance,
-                     snapshots, state_out_of_range, status)
+from .health import (NisWindow, bridge_gap, numerical_fault, restart_covariance,
+                     rollback_covariance, snapshots, state_out_of_range, status, widen_for_gaps)
 from .measurements import (MEAS_SCALE, encoder_attitude, noise_covariance, to_filter_units,
                            zero_velocity)
 from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_hint,
@@ -448,8 +448,7 @@ class CalibrationEstimator:
             if have_att[b]:
                 filt.update('attitude', z_a[b], H_a[b], R_a)  # type: ignore[index]
         if blk.n_gaps:  # motion during a gap is lost: widen the navigation uncertainty
-            filt.P[0:3, 0:3] += np.eye(3) * (1e-3 / lay.scale[0]) ** 2 * blk.n_gaps
-            filt.P[3:6, 3:6] += np.eye(3) * (1e-2 / lay.scale[3]) ** 2 * blk.n_gaps
+            widen_for_gaps(filt.P, lay, blk.n_gaps)
         self._feedback()
         self._prev = (int(t[m - 1]), w[m - 1], f[m - 1])
         self._t_last_ns = int(t[m - 1])
@@ -614,7 +613,7 @@ class CalibrationEstimator:
         if reason is None:  # from the prior mean (the coarse start)
             reason = state_out_of_range(vals, self._prior_mean(),
                                         prior_vector(self._prior, lay.groups),
-                                        lay.labels()[6:], cfg.state_range_sigmas)
+                                        lay, cfg.state_range_sigmas)
         if reason is None:
             self._nis.push(filt.counters)
             reason = self._nis.reason(cfg.max_rejected_fraction, cfg.max_mean_nis_per_dof)
@@ -720,18 +719,9 @@ class CalibrationEstimator:
         cfg = self.guard_config
         if cfg.gap_policy == 'bridge' and self._joints.still_between(
                 t_before_ns, t_after_ns, self.config.stationary_joint_tolerance_rad):
-            lay = self.layout
-            s = lay.scale
-            gap_s = (t_after_ns - t_before_ns) * 1e-9
-            P = self._filter.P
-            P[0:3, 0:3] += np.eye(3) * (cfg.bridge_attitude_sigma_rad / s[0]) ** 2
-            P[3:6, 3:6] += np.eye(3) * (cfg.bridge_velocity_sigma_m_s / s[3]) ** 2
             q1_s = self._process_noise.q1_s
             assert q1_s is not None
-            for grp in ('gyro_bias', 'accel_bias'):  # bias random walk continues in the gap
-                if grp in lay.slices:
-                    sl = lay.slices[grp]
-                    P[sl, sl] += q1_s[sl, sl] * gap_s
+            bridge_gap(self._filter.P, self.layout, q1_s, (t_after_ns - t_before_ns) * 1e-9, cfg)
             self.counters['gaps_bridged'] += 1
             return
         self._drop_navigation()

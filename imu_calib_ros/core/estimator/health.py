@@ -8,7 +8,9 @@ per dof too high (Bar-Shalom, Li & Kirubarajan, "Estimation with applications to
 and navigation", sect. 5.4: filter consistency)? A healthy block is a snapshot; a diverged
 filter restarts from the coarse start with its prior covariance inflated
 (:func:`restart_covariance`), and after ``max_restarts`` rolls back to the oldest snapshot
-(:func:`rollback_covariance`). This module judges and computes; the estimator acts.
+(:func:`rollback_covariance`). Data lost in a gap widen the covariance instead
+(:func:`widen_for_gaps`, :func:`bridge_gap`). This module judges and computes; the estimator
+acts.
 """
 from __future__ import annotations
 
@@ -44,17 +46,17 @@ def numerical_fault(P: FloatArray, x: FloatArray, values: FloatArray, v_enu_m_s:
 
 
 def state_out_of_range(values: FloatArray, prior_mean: FloatArray, prior: FloatArray,
-                       labels: list[str], range_sigmas: float) -> str | None:
-    """A calibration state further than ``range_sigmas`` prior sigmas from its prior mean
-    (the coarse start): the reason naming the worst state, else None. ``labels`` are the
-    calibration states' (no psi, dv)."""
+                       layout: StateLayout, range_sigmas: float) -> str | None:
+    """A calibration state (``values``, no psi, dv) further than ``range_sigmas`` prior
+    sigmas from its prior mean (the coarse start): the reason naming the worst state, else
+    None."""
     dev = np.abs(values - prior_mean)
     over = dev > range_sigmas * prior
     if not over.any():
         return None
     i = int(np.argmax(dev / np.where(prior > 0, prior, np.inf)))
-    return (f'state {labels[i]} = {values[i]:.3g} beyond {range_sigmas:g} prior sigmas from '
-            'its prior mean')
+    return (f'state {layout.labels()[6 + i]} = {values[i]:.3g} beyond {range_sigmas:g} prior '
+            'sigmas from its prior mean')
 
 
 class NisWindow:
@@ -137,6 +139,27 @@ def rollback_covariance(layout: StateLayout, snapshot_cov: FloatArray | None,
         P[6:, 6:] = np.diag((prior / s) ** 2) if layout.groups else 0.0
     P[0:6, 0:6] = np.eye(6)
     return P
+
+
+def widen_for_gaps(P: FloatArray, layout: StateLayout, n_gaps: int) -> None:
+    """Motion during a gap inside a block is lost (CONTRACT 1): widen the navigation block of
+    ``P`` (scaled, in place) by 1 mrad and 10 mm/s per gap."""
+    P[0:3, 0:3] += np.eye(3) * (1e-3 / layout.scale[0]) ** 2 * n_gaps
+    P[3:6, 3:6] += np.eye(3) * (1e-2 / layout.scale[3]) ** 2 * n_gaps
+
+
+def bridge_gap(P: FloatArray, layout: StateLayout, q1_s: FloatArray, gap_s: float,
+               guard_config: GuardConfig) -> None:
+    """Carry the filter over a long gap at rest (policy ``'bridge'``): ``P`` (scaled, in
+    place) widened by ``bridge_attitude_sigma_rad`` and ``bridge_velocity_sigma_m_s``, the
+    biases by their random walk over the gap (``q1_s``: Q per second, scaled)."""
+    s = layout.scale
+    P[0:3, 0:3] += np.eye(3) * (guard_config.bridge_attitude_sigma_rad / s[0]) ** 2
+    P[3:6, 3:6] += np.eye(3) * (guard_config.bridge_velocity_sigma_m_s / s[3]) ** 2
+    for grp in ('gyro_bias', 'accel_bias'):  # bias random walk continues in the gap
+        if grp in layout.slices:
+            sl = layout.slices[grp]
+            P[sl, sl] += q1_s[sl, sl] * gap_s
 
 
 def status(diverged: str | None, guard: InputGuard, guard_config: GuardConfig,
