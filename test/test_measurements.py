@@ -25,13 +25,14 @@ from imu_calib_ros.core.estimator.measurements import (MEAS_SCALE, encoder_attit
                                                        to_filter_units, zero_velocity)
 from imu_calib_ros.core.estimator.priors import nominal_lever_arm
 from imu_calib_ros.core.fixture import load_fixture
-from imu_calib_ros.core.rotation import matrix_to_rotvec, rpy_to_matrix, rotvec_to_matrix
+from imu_calib_ros.core.rotation import matrix_to_rotvec, rotvec_to_matrix, rpy_to_matrix
 
 FX = load_fixture('three_axis')
 DRPY = np.array([0.03, -0.05, 0.08])  # true mounting rotation (rpy, rad): ~5.6 deg
 DXYZ = np.array([0.04, -0.03, 0.05])  # true reference point offset (m)
 LAYOUT = em.StateLayout.build(('gyro_bias', 'gyro_scale', 'lever_arm', 'mounting'))
 STEP = 1e-6
+ZERO = np.zeros(3)  # default of the helpers (never written to)
 
 
 def _truth(seed: int, B: int = 6):  # noqa: ANN202
@@ -69,7 +70,8 @@ def test_zero_velocity_jacobian_matches_finite_differences(seed: int) -> None:
     rho_hat = rho + rng.normal(0, 1e-3, 3)
     z0, H = zero_velocity(v_hat, R_hat, w, om, rho_hat, LAYOUT)
 
-    def z_of(d_psi=np.zeros(3), d_v=np.zeros(3), d_rho=np.zeros(3)):  # noqa: ANN001, ANN202
+    def z_of(d_psi: np.ndarray = ZERO, d_v: np.ndarray = ZERO,
+             d_rho: np.ndarray = ZERO) -> np.ndarray:
         return zero_velocity(v_hat + d_v, rotvec_to_matrix(d_psi) @ R_hat, w, om,
                              rho_hat + d_rho, LAYOUT)[0]
 
@@ -123,7 +125,7 @@ def test_encoder_attitude_jacobian_matches_finite_differences(seed: int) -> None
     z0, H = encoder_attitude(R_hat, R_fix, mu_hat, LAYOUT)
     assert np.abs(z0).max() < 1e-3  # near the truth: H is exact at z = 0, O(|z|) here
 
-    def z_of(d_psi=np.zeros(3), d_mu=np.zeros(3)):  # noqa: ANN001, ANN202
+    def z_of(d_psi: np.ndarray = ZERO, d_mu: np.ndarray = ZERO) -> np.ndarray:
         mu_p = (Rotation.from_rotvec(mu_hat) * Rotation.from_rotvec(d_mu)).as_rotvec()
         return encoder_attitude(rotvec_to_matrix(d_psi) @ R_hat, R_fix, mu_p, LAYOUT)[0]
 

@@ -11,7 +11,8 @@ known. This module holds and measures; :mod:`.coarse` is the maths.
 """
 from __future__ import annotations
 
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,7 +59,8 @@ class Bootstrap:
             self._next_check_s = max(at + 20.0, 1.25 * at)  # ~12 checks up to 600 s
             yield at >= cfg.bootstrap_max_s, t0 + int(at * 1e9)
 
-    def arrays(self, t_cut_ns: int | None = None) -> tuple[Any, ...] | None:
+    def arrays(self, t_cut_ns: int | None = None
+               ) -> tuple[IntArray, FloatArray, FloatArray, IntArray, FloatArray] | None:
         """The held input up to ``t_cut_ns`` as clean arrays for :func:`coarse_start`
         (finite, stamp order, fixture joints unwrapped, point samples as interval means), or
         None if too little."""
@@ -79,8 +81,7 @@ class Bootstrap:
         if t_cut_ns is not None:
             k = int(np.searchsorted(tj, t_cut_ns, side='right'))
             tj, qj = tj[:k], qj[:k]
-        k = np.arange(len(tj))
-        qj = np.unwrap(qj[k], axis=0)
+        qj = np.unwrap(qj[np.arange(len(tj))], axis=0)
         if len(t) < 100 or len(tj) < 4:
             return None
         return t, w, f, tj, qj

@@ -114,7 +114,7 @@ class JointBuffer:
         """:meth:`append` for many samples the guard accepted (finite, stamps strictly
         increasing and above every earlier accepted stamp), vectorised."""
         if self.t_ns and int(t[0]) <= self.t_ns[-1]:  # cannot happen behind the guard
-            for ti, qi in zip(t.tolist(), q):
+            for ti, qi in zip(t.tolist(), q, strict=True):
                 self.append(ti, qi)
             return
         two_pi = 2 * np.pi
@@ -135,7 +135,7 @@ class JointBuffer:
         else:
             ref, q_chk, qu_chk = np.vstack([last[None, :], qu[:-1]]), q, qu
         if not np.array_equal(q_chk + two_pi * np.round((ref - q_chk) / two_pi), qu_chk):
-            for ti, qi in zip(t.tolist(), q):
+            for ti, qi in zip(t.tolist(), q, strict=True):
                 self.append(ti, qi)
             return
         self._last_q = qu[-1]

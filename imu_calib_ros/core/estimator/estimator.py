@@ -33,7 +33,9 @@ file) have their own modules; the names they used to have here are re-exported.
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable
+from collections import deque
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -89,6 +91,14 @@ class CalibrationEstimator:
         measure one.
     """
 
+    # the working point the navigator compensates with (the feedback moves it)
+    _theta_g: FloatArray  # (21,) gyro parameters, error_model order
+    _theta_a: FloatArray  # (26,) accelerometer parameters
+    _rho: FloatArray  # (3,) lever arm, IMU frame [m]
+    _mount: FloatArray  # (3,) mounting rotation vector, IMU frame [rad]
+    _errors: Any  # SensorErrors of the above (what sensor_model.compensate takes)
+    _point_prev: tuple[int, FloatArray, FloatArray] | None  # last raw point sample
+
     def __init__(self, fixture: Any, grade: Any = None, config: EstimatorConfig | None = None,
                  initial: Estimate | None = None, start: CoarseStart | None = None) -> None:
         self.fixture = fixture
@@ -137,7 +147,7 @@ class CalibrationEstimator:
         self._guard = InputGuard(gcfg, self.fixture.site.gravity, self._joint_names,
                                  self.fixture.joint_axes_enu)
         self._diverged: str | None = None
-        self._good = snapshots(gcfg, cfg.block_chunks)  # healthy-block estimates
+        self._good: deque[Estimate] = snapshots(gcfg, cfg.block_chunks)  # healthy blocks
         self._last_good_state: Estimate | None = None
         self._last_good_cache: tuple[int, Any] | None = None
         self._nis = NisWindow(gcfg.nis_window)
@@ -349,7 +359,7 @@ class CalibrationEstimator:
         long_gaps = {int(i) for i in long_gap_idx}
         bounds = sorted({0, *gaps, len(t)})
         tol = self.config.stationary_joint_tolerance_rad
-        for a, b in zip(bounds[:-1], bounds[1:]):
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             t_before = self._imu.last_stamp_ns
             if a in gaps and t_before is not None:
                 t_after = int(t[a])
@@ -512,7 +522,7 @@ class CalibrationEstimator:
         self._errors = self._make_errors()
         self._process_noise.white = white_noise_densities(self.start, self.grade,
                                                           self.config.noise_source)
-        self._point_prev: tuple[int, FloatArray, FloatArray] | None = None
+        self._point_prev = None
         self._latency_ns = 0 if self.start is None else int(round(
             self.start.joint_latency_s * 1e9))
         self._settle_until_ns: int | None = None

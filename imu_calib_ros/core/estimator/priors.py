@@ -71,6 +71,7 @@ def prior_sigmas(grade: Any, config: EstimatorConfig,
         # the filter estimates the total bias = turn-on constant + Gauss-Markov part
         hint['gyro_bias'] = np.hypot(hint['gyro_bias'], grade.gyro_bias_instability_rad_s)
         hint['accel_bias'] = np.hypot(hint['accel_bias'], grade.accel_bias_instability_m_s2)
+    res: dict[str, FloatArray]
     if start is None:
         res = dict(hint) if hint else {n: np.full(em.GROUP_INFO[n][1], v)
                                        for n, v in RAW_PRIOR.items()}

@@ -8,8 +8,9 @@ live here.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -99,8 +100,9 @@ def calibration_result(st: Estimate, layout: StateLayout, prior: dict[str, Float
             sig_g[em.gyro_cols(grp)] = sd[sl]
         elif grp in em.ACCEL_GROUPS:
             sig_a[em.accel_cols(grp)] = sd[sl]
-    errors = em.errors_from_theta(st.theta_gyro, st.theta_accel, sm.SensorErrors)
-    sigma = em.errors_from_theta(sig_g, sig_a, sm.SensorErrors)
+    errors = cast(sm.SensorErrors,
+                  em.errors_from_theta(st.theta_gyro, st.theta_accel, sm.SensorErrors))
+    sigma = cast(sm.SensorErrors, em.errors_from_theta(sig_g, sig_a, sm.SensorErrors))
     fixed = tuple(k for k, gs in CONTRACT_KEYS.items()
                   if not any(grp in layout.groups for grp in gs))
     return CalibrationResult(errors=errors, sigma=sigma, frame_id=frame_id, fixed=fixed,
