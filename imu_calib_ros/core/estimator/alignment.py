@@ -1,0 +1,122 @@
+"""Coarse alignment and the filter's start: the first stationary window, levelling, P0.
+
+The navigation starts at rest: in the first window of ``init_window_s`` during which no joint
+moves by more than ``stationary_joint_tolerance_rad``, the attitude is the fixture's
+(``R_enu_imu(q)`` with the mounting rotation) levelled by the mean compensated specific force
+(at rest the specific force is the reaction to gravity, "up": the rotation taking it to
+ENU's z), heading from the fixture kinematics (a turntable's heading is its encoder reading;
+with a raw unit the mounting rotation comes from the coarse start, METHODS.md section 4).
+The same window gives the IMU's sample period
+and the number of samples per chunk. The initial covariance: tilt, heading (never below the
+mounting prior about z), velocity from the config, the calibration states from the prior.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from .. import sensor_model as sm
+from .config import EstimatorConfig
+from .error_model import StateLayout
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+def still_run(jt: IntArray, jq: FloatArray, window_ns: int,
+              tol_rad: float) -> tuple[int, int | None]:
+    """The first run of joint samples during which no joint moves by more than ``tol_rad``
+    between two samples and which lasts at least ``window_ns``.
+
+    Returns
+    -------
+    start_j, stop_j :
+        Indices of the run's first and last sample; ``stop_j`` is None when no run is long
+        enough yet, and ``start_j`` then is the first sample of the newest (current) still
+        run, the only one that can still become long enough.
+    """
+    moving = np.any(np.abs(np.diff(jq, axis=0)) > tol_rad, axis=1)
+    mv = np.nonzero(moving)[0]  # motion between sample i and i + 1
+    starts = np.concatenate([[0], mv + 1])
+    stops = np.concatenate([mv, [len(jt) - 1]])  # last sample of each still run
+    ok = np.nonzero(jt[stops] - jt[starts] >= window_ns)[0]
+    if ok.size == 0:
+        return int(starts[-1]), None
+    return int(starts[ok[0]]), int(stops[ok[0]])
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """The result of a coarse alignment on one stationary window."""
+
+    nominal_dt_s: float  # median sample period of the window
+    samples_per_chunk: int  # IMU samples between two measurement updates
+    R_enu_imu: FloatArray  # (3, 3) levelled attitude at the window
+    gyro_rad_s: FloatArray  # (N, 3) compensated window samples (for noise estimation)
+    accel_m_s2: FloatArray  # (N, 3)
+
+
+def level(R_enu_imu_fixture: FloatArray, f_imu_m_s2: FloatArray) -> FloatArray:
+    """Level the fixture attitude with the mean specific force at rest: the smallest rotation
+    taking ``R f`` (up, at rest) to ENU's z, applied on the left (tilt in ENU; the heading
+    about z is the fixture's)."""
+    up = R_enu_imu_fixture @ f_imu_m_s2
+    up /= np.linalg.norm(up)
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    s = np.linalg.norm(axis)
+    ang = math.atan2(s, up[2])
+    R_lev = Rotation.from_rotvec(axis / s * ang).as_matrix() if s > 0 else np.eye(3)
+    return R_lev @ R_enu_imu_fixture
+
+
+def align(t_ns: IntArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, q_rad: FloatArray,
+          errors: Any, mounting_rotvec_rad: FloatArray, fixture: Any,
+          update_rate_hz: float) -> Alignment | None:
+    """Coarse alignment on a stationary window.
+
+    Parameters
+    ----------
+    t_ns, gyro_rad_s, accel_m_s2 :
+        The raw IMU samples of the window (interval means).
+    q_rad :
+        Mean joint positions over the window (fixture order).
+    errors :
+        :class:`~imu_calib_ros.core.sensor_model.SensorErrors` to compensate with (the
+        current estimate).
+    mounting_rotvec_rad :
+        Mounting rotation estimate (IMU frame): ``R_enu_imu = R_fixture(q) exp(mounting)``.
+    fixture, update_rate_hz :
+        Kinematics; rate of the measurement updates (samples per chunk).
+
+    Returns
+    -------
+    Alignment or None
+        None when the window holds fewer than three samples.
+    """
+    dts = np.diff(t_ns)
+    if len(dts) < 2:
+        return None
+    nominal_dt = float(np.median(dts)) * 1e-9
+    rate = 1.0 / nominal_dt
+    n = max(1, int(round(rate / update_rate_hz)))
+    w_c, f_c = sm.compensate(errors, gyro_rad_s, accel_m_s2, np.zeros_like(gyro_rad_s))
+    R_fix = fixture.R_enu_imu(q_rad) @ Rotation.from_rotvec(mounting_rotvec_rad).as_matrix()
+    return Alignment(nominal_dt, n, level(R_fix, f_c.mean(axis=0)), w_c, f_c)
+
+
+def initial_covariance(layout: StateLayout, prior: dict[str, FloatArray],
+                       config: EstimatorConfig) -> FloatArray:
+    """``P0`` in the filter's scaled units: tilt, heading (at least the mounting prior about
+    z, which the levelling cannot see), velocity at rest, the groups' prior sigmas."""
+    p0 = np.zeros(layout.n)
+    p0[0:2] = config.initial_tilt_sigma_rad
+    p0[2] = max(config.initial_heading_sigma_rad, float(prior['mounting'][2]))
+    p0[3:6] = config.initial_velocity_sigma_m_s
+    for g in layout.groups:
+        p0[layout.slices[g]] = prior[g]
+    return np.diag((p0 / layout.scale) ** 2)

@@ -1,0 +1,118 @@
+"""Holding the first data until the coarse start is determined (issue 11).
+
+Without a given start the estimator holds every input sample the guard kept, and measures the
+coarse start (:func:`~.coarse.coarse_start`: noise, joint latency, gyro and accelerometer
+errors, the mounting) on the data held so far at fixed data times: ``bootstrap_min_s``, then
+every 20 s or 25 %, up to ``bootstrap_max_s``. Checking at data times, on the data up to then,
+gives the same start whatever the push pattern (single samples, batches). Once the start is
+determined (:meth:`~.coarse.CoarseStart.determined`), or at the end of the data, the held input
+is handed back in push order: the filter sees exactly what it would have seen with the start
+known. This module holds and measures; :mod:`.coarse` is the maths.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from .buffers import point_to_mean
+from .coarse import CoarseStart, NoRotation, coarse_start
+from .config import EstimatorConfig
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+# held input, in push order: ('imu', t, w, f, gap indices, long-gap indices) or ('joints', t, q)
+HeldItem = tuple[Any, ...]
+
+
+class Bootstrap:
+    """Input held for the coarse start, and when to measure it."""
+
+    def __init__(self, config: EstimatorConfig) -> None:
+        self.config = config
+        self.items: list[HeldItem] = []
+        self._span = (0, 0)  # first and newest IMU stamp held
+        self._next_check_s = 0.0
+
+    def hold_joints(self, t: IntArray, q: FloatArray) -> None:
+        """Hold joint states the guard accepted (fixture order, not yet unwrapped)."""
+        self.items.append(('joints', t, q))
+
+    def hold_imu(self, t: IntArray, w: FloatArray, f: FloatArray, gaps: Any,
+                 long_gaps: Any) -> None:
+        """Hold IMU samples the guard kept (with the guard's gap indices)."""
+        self.items.append(('imu', t, w, f, gaps, long_gaps))
+        t0 = self._span[0] or int(t[0])
+        self._span = (t0, max(self._span[1], int(t[-1])))
+
+    def checks_due(self) -> Iterator[tuple[bool, int]]:
+        """``(final, t_cut_ns)`` of every check of the coarse start that the held IMU span has
+        reached; the caller stops iterating once the start is taken."""
+        t0 = self._span[0]
+        span = (self._span[1] - t0) * 1e-9
+        cfg = self.config
+        while span >= max(cfg.bootstrap_min_s, self._next_check_s):
+            at = max(cfg.bootstrap_min_s, self._next_check_s)
+            self._next_check_s = max(at + 20.0, 1.25 * at)  # ~12 checks up to 600 s
+            yield at >= cfg.bootstrap_max_s, t0 + int(at * 1e9)
+
+    def arrays(self, t_cut_ns: int | None = None
+               ) -> tuple[IntArray, FloatArray, FloatArray, IntArray, FloatArray] | None:
+        """The held input up to ``t_cut_ns`` as clean arrays for :func:`coarse_start`
+        (finite, stamp order, fixture joints unwrapped, point samples as interval means), or
+        None if too little."""
+        imu = [b for b in self.items if b[0] == 'imu']
+        jb = [b for b in self.items if b[0] == 'joints']
+        if not imu or not jb:
+            return None
+        t = np.concatenate([b[1] for b in imu])
+        w = np.concatenate([b[2] for b in imu])
+        f = np.concatenate([b[3] for b in imu])
+        if t_cut_ns is not None:
+            k = int(np.searchsorted(t, t_cut_ns, side='right'))
+            t, w, f = t[:k], w[:k], f[:k]
+        if self.config.imu_sample_type == 'point':
+            w, f = point_to_mean(w, f, None)
+        tj = np.concatenate([b[1] for b in jb])
+        qj = np.concatenate([b[2] for b in jb])
+        if t_cut_ns is not None:
+            k = int(np.searchsorted(tj, t_cut_ns, side='right'))
+            tj, qj = tj[:k], qj[:k]
+        qj = np.unwrap(qj[np.arange(len(tj))], axis=0)
+        if len(t) < 100 or len(tj) < 4:
+            return None
+        return t, w, f, tj, qj
+
+    def measure(self, fixture: Any, final: bool,
+                t_cut_ns: int | None = None) -> tuple[bool, CoarseStart | None]:
+        """Measure the coarse start on the held data up to ``t_cut_ns``.
+
+        Returns ``(ready, start)``: ready when the start is determined, or at the end of the
+        data (``final``; then ``start`` may be None: no rotation, the caller's "no motion"
+        check names it).
+
+        Raises
+        ------
+        InputError
+            At the end of the data, when the data contradict the fixture (one line saying
+            which): never a guess.
+        """
+        arrays = self.arrays(t_cut_ns)
+        st = None
+        if arrays is not None:
+            try:
+                st = coarse_start(*arrays, fixture,
+                                  tol_rad=self.config.stationary_joint_tolerance_rad)
+            except NoRotation:
+                pass
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                if final:
+                    raise InputError(str(exc)) from None
+        if st is None and not final:
+            return False, None
+        if st is not None and not final and not st.determined():
+            return False, st  # not yet determined: gather more
+        return True, st

@@ -1,0 +1,242 @@
+"""Input buffers of the streaming estimator: IMU samples waiting for a chunk, joint states.
+
+The input guard (:mod:`~imu_calib_ros.core.input_guard`) has already dropped bad samples;
+what arrives here is finite and in strictly increasing stamp order. The IMU buffer holds
+samples until a whole block of chunks is there; the joint buffer holds the unwrapped joint
+positions (stamps already corrected by the measured joint latency) that the alignment, the
+gap checks and the encoder attitude measurement read, trimmed as the filter advances.
+
+Also here: point samples as interval means (CONTRACT 1 option) and the joint interpolation
+at arbitrary instants (a cubic spline, issue 11).
+"""
+from __future__ import annotations
+
+import bisect
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+class ImuBuffer:
+    """Accepted IMU samples not yet processed, as a list of array pieces (joined on read)."""
+
+    def __init__(self) -> None:
+        self._t: list[IntArray] = []
+        self._w: list[FloatArray] = []
+        self._f: list[FloatArray] = []
+        self.last_stamp_ns: int | None = None  # newest sample ever appended
+
+    def append(self, t: IntArray, w: FloatArray, f: FloatArray) -> None:
+        """Buffer samples the input guard accepted (finite, strictly increasing stamps)."""
+        if not len(t):
+            return
+        self.last_stamp_ns = int(t[-1])
+        self._t.append(t)
+        self._w.append(w)
+        self._f.append(f)
+
+    def take(self) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Every buffered sample as ``(stamps (N,), gyro (N, 3), accel (N, 3))`` (a view:
+        the buffer keeps them until :meth:`keep_from`)."""
+        if len(self._t) > 1:
+            self._t = [np.concatenate(self._t)]
+            self._w = [np.concatenate(self._w)]
+            self._f = [np.concatenate(self._f)]
+        if not self._t:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+        return self._t[0], self._w[0], self._f[0]
+
+    def keep_from(self, k: int) -> None:
+        """Drop the ``k`` oldest samples."""
+        t, w, f = self.take()
+        self._t, self._w, self._f = [t[k:]], [w[k:]], [f[k:]]
+
+    def drop_all(self) -> int:
+        """Drop every buffered sample; returns how many there were."""
+        n = len(self.take()[0])
+        if n:
+            self.keep_from(n)
+        return n
+
+
+class JointBuffer:
+    """Accepted joint states in fixture joint order, unwrapped, stamps in nanoseconds.
+
+    ``t_ns`` and ``q_rad`` are plain lists (appending and trimming a list is cheaper than
+    re-allocating arrays; only the window a reader needs is converted). Counts land in
+    ``counters`` (``joint_samples``, ``joint_non_finite``, ``joint_out_of_order``): the
+    estimator's counter dict. The range of every joint's positions (``joint_travel_rad``) is
+    kept over the whole run, across :meth:`clear`.
+    """
+
+    def __init__(self, counters: dict[str, int]) -> None:
+        self.counters = counters
+        self.t_ns: list[int] = []
+        self.q_rad: list[FloatArray] = []
+        self._last_q: FloatArray | None = None
+        self._q_min: FloatArray | None = None
+        self._q_max: FloatArray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def clear(self) -> None:
+        """Forget the buffered samples and the unwrap reference (the range is kept)."""
+        self.t_ns, self.q_rad = [], []
+        self._last_q = None
+
+    # ------------------------------------------------------------------ appending
+    def append(self, stamp_ns: int, q: FloatArray) -> None:
+        """Add one sample, unwrapped against the previous one (non-finite or not newer than
+        the newest: counted and dropped)."""
+        if not np.all(np.isfinite(q)):
+            self.counters['joint_non_finite'] += 1
+            return
+        if self.t_ns and stamp_ns <= self.t_ns[-1]:
+            self.counters['joint_out_of_order'] += 1
+            return
+        if self._last_q is not None:  # unwrap against the previous sample
+            q = q + 2 * np.pi * np.round((self._last_q - q) / (2 * np.pi))
+        self._last_q = q
+        self.t_ns.append(stamp_ns)
+        self.q_rad.append(q)
+        if self._q_min is None or self._q_max is None:
+            self._q_min, self._q_max = q.copy(), q.copy()
+        else:
+            self._q_min = np.minimum(self._q_min, q)
+            self._q_max = np.maximum(self._q_max, q)
+        self.counters['joint_samples'] += 1
+
+    def extend(self, t: IntArray, q: FloatArray) -> None:
+        """:meth:`append` for many samples the guard accepted (finite, stamps strictly
+        increasing and above every earlier accepted stamp), vectorised."""
+        if self.t_ns and int(t[0]) <= self.t_ns[-1]:  # cannot happen behind the guard
+            for ti, qi in zip(t.tolist(), q, strict=True):
+                self.append(ti, qi)
+            return
+        two_pi = 2 * np.pi
+        # unwrap: sample k moves by 2 pi m_k, m_k = m_(k-1) + round((q_(k-1) - q_k) / 2 pi);
+        # np.unwrap's formula differs in the last bit, so the sequential rule is used and
+        # checked below (a mismatch, only at exactly half turns, falls back to the loop)
+        last = self._last_q
+        if last is not None:
+            ref_raw = np.vstack([last[None, :], q[:-1]])
+            m = np.cumsum(np.round((ref_raw - q) / two_pi), axis=0)
+        else:
+            m = np.vstack([np.zeros((1, q.shape[1])),
+                           np.cumsum(np.round((q[:-1] - q[1:]) / two_pi), axis=0)])
+        qu = q + two_pi * m
+        if last is None:
+            qu[0] = q[0]  # the first sample is kept as it is (single push)
+            ref, q_chk, qu_chk = qu[:-1], q[1:], qu[1:]
+        else:
+            ref, q_chk, qu_chk = np.vstack([last[None, :], qu[:-1]]), q, qu
+        if not np.array_equal(q_chk + two_pi * np.round((ref - q_chk) / two_pi), qu_chk):
+            for ti, qi in zip(t.tolist(), q, strict=True):
+                self.append(ti, qi)
+            return
+        self._last_q = qu[-1]
+        self.t_ns.extend(t.tolist())
+        self.q_rad.extend(qu)
+        lo, hi = qu.min(axis=0), qu.max(axis=0)
+        if self._q_min is None or self._q_max is None:
+            self._q_min, self._q_max = lo, hi
+        else:
+            self._q_min = np.minimum(self._q_min, lo)
+            self._q_max = np.maximum(self._q_max, hi)
+        self.counters['joint_samples'] += len(t)
+
+    @property
+    def travel_rad(self) -> float:
+        """Largest range (max - min) of any joint's accepted, unwrapped positions [rad]."""
+        if self._q_min is None or self._q_max is None:
+            return 0.0
+        return float(np.max(self._q_max - self._q_min))
+
+    # ------------------------------------------------------------------ reading and trimming
+    def arrays(self) -> tuple[IntArray, FloatArray]:
+        """The whole buffer as ``(stamps (N,), positions (N, n_joints))``."""
+        return np.array(self.t_ns, np.int64), np.array(self.q_rad)
+
+    def keep_from(self, j: int) -> None:
+        """Drop the ``j`` oldest samples."""
+        self.t_ns, self.q_rad = self.t_ns[j:], self.q_rad[j:]
+
+    def drop_before(self, t_ns: int) -> None:
+        """Drop the samples stamped before ``t_ns``."""
+        k = bisect.bisect_left(self.t_ns, t_ns)
+        del self.t_ns[:k]
+        del self.q_rad[:k]
+
+    def trim(self, t_ns: int | None) -> None:
+        """Keep two samples before ``t_ns`` (the newest processed IMU stamp) and all after:
+        what the interpolation at later chunk ends needs."""
+        if t_ns is None or len(self.t_ns) < 3:
+            return
+        k = bisect.bisect_left(self.t_ns, t_ns) - 2  # the list may hold a whole run
+        if k > 0:
+            del self.t_ns[:k]
+            del self.q_rad[:k]
+
+    def still_between(self, t0_ns: int, t1_ns: int, tol_rad: float) -> bool:
+        """True if samples cover ``[t0_ns, t1_ns]`` (the last no more than 0.5 s before
+        ``t1_ns``) and no joint moved by more than ``tol_rad`` over it."""
+        if not self.t_ns:
+            return False
+        jt, jq = self.arrays()
+        i0 = int(np.searchsorted(jt, t0_ns, side='right')) - 1
+        i1 = int(np.searchsorted(jt, t1_ns, side='right'))
+        if i0 < 0 or jt[i1 - 1] < t1_ns - int(0.5e9):
+            return False
+        travel = np.abs(jq[i0:i1] - jq[i0]).max()
+        return bool(travel <= tol_rad)
+
+    def positions_at(self, t_ns: IntArray) -> tuple[NDArray[np.bool_], FloatArray | None]:
+        """Joint positions at the instants ``t_ns`` (increasing; the buffer not empty).
+
+        Returns
+        -------
+        covered : (B,) bool
+            Instants inside the span of the buffered samples.
+        q : (B, n_joints) or None
+            :func:`interp_joints` at every instant (clamped to the span), None when no
+            instant is covered. Only the samples around the covered instants are read: the
+            buffer may hold a whole run.
+        """
+        covered = (t_ns >= self.t_ns[0]) & (t_ns <= self.t_ns[-1])
+        if not covered.any():
+            return covered, None
+        t_in = t_ns[covered]
+        j0 = max(bisect.bisect_right(self.t_ns, int(t_in[0])) - 3, 0)
+        j1 = bisect.bisect_left(self.t_ns, int(t_in[-1])) + 3
+        jt = np.array(self.t_ns[j0:j1], np.int64)
+        jq = np.array(self.q_rad[j0:j1])
+        rel = (t_ns - jt[0]).astype(float) * 1e-9
+        jrel = (jt - jt[0]).astype(float) * 1e-9
+        return covered, interp_joints(rel, jrel, jq)
+
+
+def interp_joints(t_s: FloatArray, tj_s: FloatArray, qj: FloatArray) -> FloatArray:
+    """Joint angles at ``t_s`` by a cubic spline through the samples (linear interpolation
+    through a 20 Hz record of an accelerating move biased the gyro scale by 44-77 ppm;
+    issue 11), clamped to the record's ends."""
+    if len(tj_s) < 4:
+        return np.stack([np.interp(t_s, tj_s, qj[:, i]) for i in range(qj.shape[1])], axis=1)
+    from scipy.interpolate import CubicSpline
+    return CubicSpline(tj_s, qj, axis=0)(np.clip(t_s, tj_s[0], tj_s[-1]))
+
+
+def point_to_mean(w: FloatArray, f: FloatArray,
+                  prev: tuple[int, FloatArray, FloatArray] | None
+                  ) -> tuple[FloatArray, FloatArray]:
+    """Point samples as interval means (CONTRACT 1 option): the trapezoid of each sample and
+    the one before it, exact for rates linear over the interval (the first sample, without a
+    predecessor, stands for itself). ``prev`` is ``(stamp, gyro, accel)`` of the raw sample
+    before ``w[0]``, ``f[0]``, or None."""
+    w0 = w[:1] if prev is None else prev[1][None, :]
+    f0 = f[:1] if prev is None else prev[2][None, :]
+    return (0.5 * (w + np.vstack([w0, w[:-1]])), 0.5 * (f + np.vstack([f0, f[:-1]])))
+

@@ -1,0 +1,118 @@
+"""Measurement models of the filter: zero velocity with the lever arm, encoder attitude.
+
+Pure functions of their inputs, vectorised over the ``B`` chunk ends of a block. Each
+returns the innovation ``z`` (predicted from the navigator minus what the fixture says) and
+its Jacobian ``H`` with respect to the error state (estimate minus truth, the layout of
+:class:`~.error_model.StateLayout`, SI units), so that ``z = H x + noise`` to first order;
+:func:`to_filter_units` scales both for the filter (velocities in um/s, attitudes in urad,
+states in the layout's engineering units). ``test/test_measurements.py`` checks every
+Jacobian column against finite differences of ``z``.
+
+Conventions (``error_model``, ``strapdown``): ``R_hat = exp([psi x]) R``, ``v_hat = v + dv``,
+``rho_hat = rho + x_rho``, and the mounting ``exp(mu_hat) = exp(mu) exp(x_mu)`` (the feedback
+applies ``exp(mu) = exp(mu_hat) exp(-x_mu)``).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from ..rotation import skew
+from .error_model import StateLayout
+
+FloatArray = NDArray[np.float64]
+MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the filter
+
+
+def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad_s: FloatArray,
+                  omega_ie_enu_rad_s: FloatArray, rho_imu_m: FloatArray,
+                  layout: StateLayout) -> tuple[FloatArray, FloatArray]:
+    """Zero velocity of the turntable with the lever arm (METHODS.md, "cuts across").
+
+    On a rigid fixture the IMU reference point, ``rho`` from the axes' common point, moves
+    with ``v_enu = R_enu_imu (omega_eb_imu x rho)``, ``omega_eb = omega_ib - R^T omega_ie``.
+    The innovation is the navigated velocity minus that:
+    ``z = v_hat - R_hat (omega_eb x rho_hat) = dv + [(R u) x] psi - R [omega_eb x] x_rho``,
+    ``u = omega_eb x rho``. Not in ``H``: the earth-rate part of ``omega_eb`` through psi
+    (``|Omega_ie| |rho|`` per radian, < 1e-5 m/s/rad) and the gyro errors through ``omega``
+    (the rate error times ``rho``): both second order at the filter's working point.
+
+    Parameters
+    ----------
+    v_enu_m_s : (B, 3)
+        Navigated velocity at the chunk ends.
+    R_enu_imu : (B, 3, 3)
+        Navigated attitude at the chunk ends.
+    omega_ib_imu_rad_s : (B, 3)
+        Compensated angular rate at the chunk-end instants, IMU frame.
+    omega_ie_enu_rad_s : (3,)
+        Earth rate in ENU.
+    rho_imu_m : (3,)
+        Lever arm estimate, IMU frame.
+    layout :
+        The state layout (``H`` columns; the lever-arm column only if it is a state).
+
+    Returns
+    -------
+    z : (B, 3) [m/s]
+    H : (B, 3, n) [m/s per SI state unit]
+    """
+    w_eb = omega_ib_imu_rad_s - omega_ie_enu_rad_s @ R_enu_imu  # R^T omega_ie per chunk end
+    u = w_eb @ skew(rho_imu_m)  # omega_eb x rho (np.cross costs 10x on (B, 3))
+    Ru = (R_enu_imu @ u[:, :, None])[:, :, 0]
+    z = v_enu_m_s - Ru
+    H = np.zeros((len(z), 3, layout.n))
+    H[:, :, 3:6] = np.eye(3)
+    H[:, :, 0:3] = skew(Ru)
+    if 'lever_arm' in layout.slices:
+        H[:, :, layout.slices['lever_arm']] = -R_enu_imu @ skew(w_eb)
+    return z, H
+
+
+def encoder_attitude(R_enu_imu: FloatArray, R_enu_imu_fixture: FloatArray,
+                     mounting_rotvec_rad: FloatArray,
+                     layout: StateLayout) -> tuple[FloatArray, FloatArray]:
+    """Attitude from the joint encoders with the mounting rotation (issue 11 aiding).
+
+    The fixture kinematics at the encoder angles give ``R_fix(q)``; with the mounting
+    ``R_pred = R_fix(q) exp(mu_hat)``. The innovation is the rotation vector of
+    ``R_hat R_pred^T = exp([psi x]) exp(-[(R x_mu) x])``: ``z = psi - R x_mu`` to first order.
+
+    Parameters
+    ----------
+    R_enu_imu : (B, 3, 3)
+        Navigated attitude at the chunk ends.
+    R_enu_imu_fixture : (B, 3, 3)
+        ``fixture.R_enu_imu(q)`` at the encoder angles of the same instants (nominal
+        mounting).
+    mounting_rotvec_rad : (3,)
+        Mounting rotation estimate, IMU frame.
+    layout :
+        The state layout (the mounting column only if it is a state).
+
+    Returns
+    -------
+    z : (B, 3) [rad]
+    H : (B, 3, n) [rad per SI state unit]
+    """
+    R_pred = R_enu_imu_fixture @ Rotation.from_rotvec(mounting_rotvec_rad).as_matrix()
+    z = Rotation.from_matrix(R_enu_imu @ np.swapaxes(R_pred, 1, 2)).as_rotvec()
+    H = np.zeros((len(z), 3, layout.n))
+    H[:, :, 0:3] = np.eye(3)
+    if 'mounting' in layout.slices:
+        H[:, :, layout.slices['mounting']] = -R_enu_imu
+    return z, H
+
+
+def to_filter_units(z: FloatArray, H: FloatArray,
+                    scale: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``z`` and ``H`` (SI) in the filter's units: ``z / MEAS_SCALE``; ``H`` per scaled state
+    (``H * scale / MEAS_SCALE``, in place)."""
+    H *= scale[None, None, :] / MEAS_SCALE
+    return z / MEAS_SCALE, H
+
+
+def noise_covariance(sigma: float) -> FloatArray:
+    """``R`` of a 3-D measurement with one-sigma ``sigma`` (SI) in the filter's units."""
+    return np.eye(3) * (sigma / MEAS_SCALE) ** 2

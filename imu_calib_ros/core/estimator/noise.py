@@ -1,0 +1,159 @@
+"""Process noise of the filter: white noise, the biases' random walk, and its adaptation.
+
+``Q`` per second (:func:`~.ekf.process_noise`) is built from the sensors' white-noise
+densities (measured by the coarse start or on the alignment window with the Allan deviation,
+or the grade's) and the biases' random walk: the grade's Gauss-Markov instability as
+``q = 2 sigma^2 / tau`` plus its random walk, at least what the coarse start measured
+(issue 11 item 5), and for a MEMS unit without a grade never zero (:data:`MEMS_BIAS_WALK`).
+When the innovations say the biases drift more than that (covariance matching, Mehra 1972,
+"Approaches to adaptive filtering", one way only), :class:`ProcessNoise` doubles the walk.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .coarse import CoarseStart
+from .ekf import process_noise
+from .error_model import StateLayout
+
+FloatArray = NDArray[np.float64]
+_LOG = logging.getLogger('imu_calib_ros.estimator')
+
+# Least bias random walk of a MEMS unit without a grade, per sqrt(s), as a fraction of its
+# white-noise density: gyro 0.035 (a Gauss-Markov instability of N/4 rad/s over 100 s, e.g.
+# 0.42 deg/sqrt(h) -> 6 deg/h; MTi-1 datasheet 10 deg/h, industrial units 1-3 deg/h at 0.1-0.3
+# deg/sqrt(h)), accelerometer 0.015 (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035).
+MEMS_BIAS_WALK = (0.035, 0.015)
+
+
+def white_noise_densities(start: CoarseStart | None, grade: Any,
+                          noise_source: str) -> tuple[float, float]:
+    """White-noise densities ``(gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz))`` for Q: measured
+    (coarse start) or the grade's (``noise_source``; the data's when there is no grade)."""
+    if start is not None and (noise_source == 'data' or grade is None):
+        return start.gyro_noise_rad_s_rt_hz, start.accel_noise_m_s2_rt_hz
+    if grade is not None:
+        return grade.gyro_noise_rad_s_rt_hz, grade.accel_noise_m_s2_rt_hz
+    return 1e-4, 1e-3  # nothing measured yet and no grade: MEMS-like until the start
+
+
+def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float) -> tuple[float, float]:
+    """White-noise densities from a stationary window (Allan deviation at the shortest tau,
+    where white noise dominates: ``N = sigma_A(tau) sqrt(tau)``, IEEE Std 952-1997 annex C)."""
+    import allantools
+    rate = 1.0 / dt_s
+    out = []
+    for x in (w, f):
+        dens = []
+        for a in range(3):
+            taus, adev, _, _ = allantools.oadev(x[:, a], rate=rate, data_type='freq',
+                                                taus=np.array([dt_s * 2]))
+            dens.append(adev[0] * math.sqrt(taus[0]))
+        out.append(float(np.sqrt(np.mean(np.square(dens)))))
+    return out[0], out[1]
+
+
+def bias_random_walk(grade: Any, start: CoarseStart | None,
+                     mems_gyro_noise_rad_s_rt_hz: float) -> tuple[float, float]:
+    """Spectral densities of the gyro and accelerometer bias random walk ``(q_g, q_a)``
+    [(rad/s)^2/s, (m/s^2)^2/s]: the grade's (Gauss-Markov ``2 sigma^2 / tau`` + random walk),
+    at least the walk the coarse start measured (item 5); a unit whose gyro noise is above
+    ``mems_gyro_noise_rad_s_rt_hz`` and that has no grade gets at least
+    :data:`MEMS_BIAS_WALK` (the stationary windows of a short plan cannot show a 100 s
+    instability)."""
+    gr = grade
+    qg = qa = 0.0
+    if gr is not None:
+        qg = (2.0 * gr.gyro_bias_instability_rad_s ** 2 / gr.gyro_bias_correlation_s
+              + gr.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
+        qa = (2.0 * gr.accel_bias_instability_m_s2 ** 2 / gr.accel_bias_correlation_s
+              + gr.accel_bias_random_walk_m_s3_rt_hz ** 2)
+    st = start
+    if st is not None:  # item 5: the random walk the data show, if larger
+        qg = max(qg, st.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
+        qa = max(qa, st.accel_bias_random_walk_m_s3_rt_hz ** 2)
+        if gr is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
+            # a MEMS unit and no grade: never assume its biases constant
+            qg = max(qg, (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2)
+            qa = max(qa, (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2)
+    return qg, qa
+
+
+class ProcessNoise:
+    """``Q`` per second of one estimator run, in the filter's scaled units (``q1_s``).
+
+    ``white`` (gyro, accel densities) is set at the start and at each alignment; the biases'
+    walk at each filter start (:meth:`start`). The adaptation (:meth:`adapt`: its seed and its
+    doubling) is kept across re-alignments and restarts: the drift it found is the unit's.
+    """
+
+    def __init__(self, noise_scale: float) -> None:
+        self.noise_scale = noise_scale  # multiplies the white-noise densities
+        self.white = (0.0, 0.0)
+        self.bias_q = (0.0, 0.0)
+        self.seed = (0.0, 0.0)  # the walk the adaptation seeded, when none was known
+        self.scale = 1.0  # the adaptation's factor on the walk
+        self.q1_s: FloatArray | None = None  # diagonal Q per second, scaled units
+        self._layout: StateLayout | None = None
+
+    def start(self, layout: StateLayout, bias_q: tuple[float, float]) -> None:
+        """Q for a new filter: the bias walk ``bias_q``, at least the adaptation's seed."""
+        self._layout = layout
+        self.bias_q = (max(bias_q[0], self.seed[0]), max(bias_q[1], self.seed[1]))
+        self._update()
+
+    def _update(self) -> None:
+        """Q per second (scaled) from the white noise and the bias walk x its adaptation."""
+        lay = self._layout
+        assert lay is not None
+        k = self.noise_scale
+        qg, qa = (q * self.scale for q in self.bias_q)
+        q1 = process_noise(lay, 1.0, k * self.white[0], k * self.white[1], qg, qa)
+        self.q1_s = np.diag(np.diag(q1) / lay.scale ** 2)
+
+    def adapt(self, window: tuple[int, int, float] | None, nis_window: int) -> bool:
+        """Item 5: a bias drift nobody declared shows as innovations larger than the filter
+        predicts. ``window`` is ``(accepted, rejected, NIS sum)`` of the updates since the NIS
+        window began (:class:`~.health.NisWindow`). When it spans ``nis_window`` updates and
+        the mean NIS per dof stands out of its chi-square spread (4 sigma) or gated updates
+        appear, the biases' random walk is doubled (seeded, when none was known, at 1e-3 of
+        the white noise density per sqrt(s), gyro, and 1e-2, accelerometer). Returns whether
+        Q changed (the caller then starts a fresh window)."""
+        if window is None:
+            return False
+        acc, rej, nis_sum = window
+        if acc + rej < nis_window:
+            return False
+        mean = nis_sum / max(acc, 1) / 3.0
+        if mean < 1.0 + 4.0 * math.sqrt(2.0 / (3.0 * max(acc, 1))) and rej == 0:
+            return False
+        if not any(self.bias_q):  # kept across re-alignments, like the scale
+            self.seed = ((1e-3 * self.white[0]) ** 2, (1e-2 * self.white[1]) ** 2)
+            self.bias_q = self.seed
+        elif self.scale < 2.0 ** 30:
+            self.scale *= 2.0
+        else:
+            return False
+        self._update()
+        return True
+
+
+def check_grade_hint(grade: Any, start: CoarseStart, noise_source: str) -> None:
+    """Log one line when the data disagree with the grade the user gave (white noise more
+    than a factor 2 away from the grade's)."""
+    gr = grade
+    if gr is None:
+        return
+    for what, got, hint in (('gyro', start.gyro_noise_rad_s_rt_hz, gr.gyro_noise_rad_s_rt_hz),
+                            ('accelerometer', start.accel_noise_m_s2_rt_hz,
+                             gr.accel_noise_m_s2_rt_hz)):
+        if hint > 0 and not 0.5 <= got / hint <= 2.0:
+            _LOG.warning('the data disagree with the IMU grade %s: %s white noise %.3g is '
+                         '%.2g x the grade\'s %.3g (using %s)', gr.name, what, got,
+                         got / hint, hint, 'the data\'s' if noise_source == 'data'
+                         else 'the grade\'s')

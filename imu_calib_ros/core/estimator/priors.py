@@ -1,0 +1,173 @@
+"""The prior of the calibration states: its sigmas, its mean, and the correction of later passes.
+
+The prior sigmas come from the coarse start (issue 11: ``prior_inflation`` x its sigma, never
+narrower than :data:`COARSE_FLOOR` nor than the grade hint) or, without one, from the grade
+(``auto_start: false``); values nobody measured get :data:`RAW_PRIOR`, the largest raw errors
+the product is specified for. The prior mean is where the first pass starts: the coarse start,
+else no sensor errors, with the nominal lever arm. A later pass (Savage, "Improved strapdown
+IMU calibration procedures", sect. 8) relinearises about the previous estimate but keeps this
+prior: :func:`prior_correction` takes off what the re-centred prior mean added.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from . import error_model as em
+from .coarse import CoarseStart
+from .config import EstimatorConfig
+
+if TYPE_CHECKING:
+    from .result import Estimate
+
+FloatArray = NDArray[np.float64]
+# the filter's working point: theta_gyro (21,), theta_accel (26,) in error_model order, the
+# lever arm (3,) [m] and the mounting rotation vector (3,) [rad], both in the IMU frame
+WorkingPoint = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+
+# Wide priors of an uncalibrated unit (SI), for what the coarse start does not measure:
+# the largest raw errors the product is specified for (issue 11: MEMS scale 3 %, misalignment
+# 30 mrad, gyro bias 1 deg/s, accel bias 100 mg, size effect 2 cm).
+RAW_PRIOR: dict[str, float] = {
+    'gyro_bias': 1.75e-2, 'gyro_scale': 3e-2, 'gyro_asymmetry': 3e-3,
+    'gyro_misalignment': 3e-2, 'gyro_g_sensitivity': 1.8e-5, 'accel_bias': 1.0,
+    'accel_scale': 3e-2, 'accel_asymmetry': 3e-3, 'accel_misalignment': 3e-2,
+    'accel_quadratic': 1e-4, 'size_effect': 2e-2}
+# Least prior around a coarse value, for the model errors of the coarse fit (accelerometer
+# asymmetry and quadratic terms are not in it; they shift bias and scale by ~aa g, which the
+# fit's residuals, hence its sigmas, also show).
+COARSE_FLOOR: dict[str, float] = {
+    'gyro_bias': 4.8e-9, 'gyro_scale': 1e-5, 'gyro_asymmetry': 1e-5,
+    'gyro_misalignment': 1e-5, 'gyro_g_sensitivity': 1e-8, 'accel_bias': 1e-3,
+    'accel_scale': 2e-4, 'accel_misalignment': 2e-4, 'accel_asymmetry': 3e-3,
+    'accel_quadratic': 1e-4, 'size_effect': 2e-2}
+
+
+def prior_sigmas(grade: Any, config: EstimatorConfig,
+                 start: CoarseStart | None = None) -> dict[str, FloatArray]:
+    """One-sigma prior of every group in SI.
+
+    Without a coarse start: the grade's sigmas x ``prior_sigma_scale`` (the old behaviour,
+    ``auto_start: false``). With one (issue 11): ``prior_inflation`` x the coarse sigma, never
+    below :data:`COARSE_FLOOR` nor the grade hint; values the data did not determine get the
+    grade hint's sigma if one was given, else :data:`RAW_PRIOR`.
+    """
+    k = config.prior_sigma_scale
+    hint: dict[str, FloatArray] = {}
+    if grade is not None:
+        s = grade.sigma
+        vals = {
+            'gyro_bias': s.gyro_bias_rad_s, 'gyro_scale': s.gyro_scale,
+            'gyro_asymmetry': s.gyro_asymmetry, 'gyro_misalignment': s.gyro_misalignment_rad,
+            'gyro_g_sensitivity': s.gyro_g_sensitivity, 'accel_bias': s.accel_bias_m_s2,
+            'accel_scale': s.accel_scale, 'accel_asymmetry': s.accel_asymmetry,
+            'accel_misalignment': s.accel_misalignment_rad,
+            'accel_quadratic': s.accel_quadratic, 'size_effect': s.size_effect_m}
+        hint = {n: np.full(em.GROUP_INFO[n][1], k * float(v)) for n, v in vals.items()}
+        # the filter estimates the total bias = turn-on constant + Gauss-Markov part
+        hint['gyro_bias'] = np.hypot(hint['gyro_bias'], grade.gyro_bias_instability_rad_s)
+        hint['accel_bias'] = np.hypot(hint['accel_bias'], grade.accel_bias_instability_m_s2)
+    res: dict[str, FloatArray]
+    if start is None:
+        res = dict(hint) if hint else {n: np.full(em.GROUP_INFO[n][1], v)
+                                       for n, v in RAW_PRIOR.items()}
+    else:
+        res = {}
+        for name, raw in RAW_PRIOR.items():
+            side = em.GROUP_INFO[name][4]
+            cols = em.gyro_cols(name) if side == 'g' else em.accel_cols(name)
+            sig = (start.sigma_gyro if side == 'g' else start.sigma_accel)[cols]
+            measured = np.isfinite(sig)
+            p = np.where(measured,
+                         np.maximum(config.prior_inflation * np.nan_to_num(sig, posinf=0.0),
+                                    COARSE_FLOOR[name]), raw)
+            if name in hint:
+                # the hint where the data measured nothing (the user's knowledge of the unit),
+                # else never narrower than it; a grade that says "none" (sigma 0: optical
+                # gyros have no G) drops the group
+                h = hint[name]
+                p = np.where(h > 0, np.where(measured, np.maximum(p, h), h), 0.0)
+            res[name] = p
+    res['time_offset'] = np.full(1, config.time_offset_sigma_s)
+    res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
+    mount = config.mounting_sigma_rad
+    if start is not None:
+        ms = start.mounting_sigma_rad
+        mount = max(mount, config.prior_inflation * ms if math.isfinite(ms) else 0.2)
+    res['mounting'] = np.full(3, mount)
+    return res
+
+
+def prior_vector(prior: dict[str, FloatArray], groups: tuple[str, ...]) -> FloatArray:
+    """The prior sigmas of ``groups`` in state order (SI), empty without groups."""
+    return np.concatenate([prior[g] for g in groups]) if groups else np.zeros(0)
+
+
+def nominal_lever_arm(fixture: Any) -> FloatArray:
+    """The nominal fixture's reference-point offset from the axes, IMU frame [m]."""
+    q0 = np.zeros(fixture.n_joints)
+    return fixture.R_enu_imu(q0).T @ fixture.p_enu_m(q0)
+
+
+def prior_point(fixture: Any, start: CoarseStart | None, layout: em.StateLayout) -> WorkingPoint:
+    """The prior mean as fresh parameter arrays: the coarse start (issue 11), else no sensor
+    errors; the nominal lever arm in the (mounted) IMU frame; the measured mounting rotation,
+    else none. A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
+    a coarse G of 1.4e-7 (rad/s)/(m/s^2) kept under a grade that has no G acted as an
+    unmodelled 0.3 deg/h bias (6 sigma)."""
+    if start is None:
+        return (np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), nominal_lever_arm(fixture),
+                np.zeros(3))
+    R_m = Rotation.from_rotvec(start.mounting_rotvec_rad).as_matrix()
+    tg, ta = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
+    tg[layout.gyro_cols] = start.theta_gyro[layout.gyro_cols]
+    ta[layout.accel_cols] = start.theta_accel[layout.accel_cols]
+    return tg, ta, R_m.T @ nominal_lever_arm(fixture), start.mounting_rotvec_rad.copy()
+
+
+def prior_shift(initial: Estimate | None, labels: tuple[str, ...],
+                prior_mean: FloatArray) -> FloatArray | None:
+    """``initial.values`` minus the prior mean (None without a starting estimate).
+
+    Raises
+    ------
+    ValueError
+        The starting estimate has other states than ``labels``.
+    """
+    if initial is None:
+        return None
+    if tuple(initial.labels) != labels:
+        raise ValueError('the starting estimate has other states than this estimator '
+                         '(a pass with another configuration?)')
+    return np.asarray(initial.values, float) - prior_mean
+
+
+def prior_correction(P: FloatArray, shift: FloatArray, prior: dict[str, FloatArray],
+                     groups: tuple[str, ...]) -> FloatArray:
+    """What re-centring the prior on the starting estimate added to the estimate.
+
+    A pass that starts from a previous pass's estimate with the grade's prior covariance
+    ``P0`` (Savage sect. 8, PSINS's passes) would count the data twice: its prior mean
+    is already the data's answer. For constant states the posterior mean is linear in
+    the prior mean with slope ``P P0^-1`` (information form: ``P^-1 x = P0^-1 m +
+    sum H^T R^-1 z``), so ``P P0^-1 (start - prior mean)`` is taken off again: the pass
+    relinearises about the previous estimate but keeps the grade's prior. The biases'
+    random walk makes the slope smaller than that; for the shipped grades either the
+    walk or ``P P0^-1`` is negligible (nav: 0.0005 deg/h over a 0.01 deg/h prior; MEMS:
+    a 6 deg/h posterior under a 720 deg/h prior).
+
+    Parameters
+    ----------
+    P : (m, m)
+        SI covariance of the calibration states.
+    shift : (m,)
+        :func:`prior_shift`.
+    prior, groups :
+        Prior sigmas by group; the estimated groups in state order.
+    """
+    p0 = np.concatenate([prior[g] for g in groups])
+    return P @ (shift / p0 ** 2)
