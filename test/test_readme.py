@@ -36,6 +36,16 @@ def _commands(block: str) -> list[list[str]]:
     return cmds
 
 
+def _run_all(cmds: list[list[str]], cwd: Path) -> None:
+    """Run the README's commands with the venv's console scripts first on PATH; each exits 0."""
+    bindir = Path(sys.executable).parent
+    env = dict(os.environ, PATH=f'{bindir}{os.pathsep}{os.environ["PATH"]}')
+    for cmd in cmds:
+        out = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True,
+                             timeout=600)
+        assert out.returncode == 0, f'{shlex.join(cmd)}: {out.stderr[-2000:]}'
+
+
 def test_walkthrough_calibrates_a_simulated_bag(tmp_path: Path) -> None:
     cmds = _commands(_block('## A complete calibration of a simulated bag', 'bash'))
     assert cmds[0] == ['mkdir', '-p', 'run']
@@ -43,12 +53,7 @@ def test_walkthrough_calibrates_a_simulated_bag(tmp_path: Path) -> None:
     (tmp_path / 'run').mkdir()
     assert [c[:2] for c in cmds] == [['imu-calib', 'simulate'], ['imu-calib', 'replay'],
                                      ['imu-calib', 'replay'], ['imu-calib', 'report']]
-    bindir = Path(sys.executable).parent
-    env = dict(os.environ, PATH=f'{bindir}{os.pathsep}{os.environ["PATH"]}')
-    for cmd in cmds:
-        out = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True,
-                             timeout=600)
-        assert out.returncode == 0, f'{shlex.join(cmd)}: {out.stderr[-2000:]}'
+    _run_all(cmds, tmp_path)
     truth = CalibrationResult.load(tmp_path / 'run' / 'truth.yaml')
     calib = CalibrationResult.load(tmp_path / 'run' / 'calib.yaml')
     # The walk-through's EKF result is consistent with the truth: accelerometer scale and
@@ -90,12 +95,7 @@ def test_plain_command_calibrates_the_readme_mems_bag(tmp_path: Path) -> None:
     assert [c[:2] for c in cmds] == [['imu-calib', 'simulate'], ['imu-calib', 'replay']]
     assert '--imu' not in cmds[1] and '--config' not in cmds[1]
     (tmp_path / 'run').mkdir()
-    bindir = Path(sys.executable).parent
-    env = dict(os.environ, PATH=f'{bindir}{os.pathsep}{os.environ["PATH"]}')
-    for cmd in cmds:
-        out = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True,
-                             timeout=600)
-        assert out.returncode == 0, f'{shlex.join(cmd)}: {out.stderr[-2000:]}'
+    _run_all(cmds, tmp_path)
     truth = CalibrationResult.load(tmp_path / 'run' / 'mems_truth.yaml')
     calib = CalibrationResult.load(tmp_path / 'run' / 'mems_calib.yaml')
     from imu_calib_ros.core.sensor_model import PARAMETER_SLICES
