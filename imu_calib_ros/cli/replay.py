@@ -179,12 +179,13 @@ def run(args: Any) -> int:
                                  'it, marked as failing)')
     _reorder_note(reorder, args.reorder_window, args.quiet)
     calib = _with_provenance(calib, args, reorder)
-    if verdict is not None:
+    if verdict is not None:  # the same rule as the node's save (core/estimator/selfcheck.py)
         import dataclasses
 
-        from ..core.estimator.selfcheck import with_verdict
-        calib = dataclasses.replace(calib, extra=with_verdict(calib.extra, verdict.as_dict(),
-                                                              forced=args.force))
+        from ..core.estimator.selfcheck import saved_extra
+        extra, _ = saved_extra(calib.extra, verdict.as_dict(), args.force)
+        assert extra is not None  # refused above
+        calib = dataclasses.replace(calib, extra=extra)
     calib.save(out)
     if verdict is not None and not verdict.passed:
         print(f'imu-calib replay: warning: {verdict.line}; written because of --force, marked '

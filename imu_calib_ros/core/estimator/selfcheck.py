@@ -356,3 +356,15 @@ def verdict_of(extra: dict[str, Any]) -> dict[str, Any] | None:
     """The verdict a calibration's extra keys carry, or None."""
     v = (extra.get('provenance', {}) or {}).get(PROVENANCE_KEY)
     return v if isinstance(v, dict) else None
+
+
+def saved_extra(extra: dict[str, Any], verdict: dict[str, Any] | None,
+                force: bool) -> tuple[dict[str, Any] | None, str]:
+    """The rule for writing a calibration (the node's save service and save on shutdown; the
+    CLI's ``--force``): ``(extra with the verdict, '')`` when it passed or ``force`` is set
+    (marked), else ``(None, why)``. A missing verdict counts as failed."""
+    v = verdict if verdict is not None else {
+        'passed': False, 'summary': 'no self-check verdict (the estimator diverged or failed)'}
+    if not v.get('passed', False) and not force:
+        return None, str(v.get('summary', 'self-check failed'))
+    return with_verdict(extra, v, forced=force), ''
