@@ -52,6 +52,7 @@ WORLD = ('nav', 'tactical', 'industrial_mems', 'consumer_mems')
 SIM = {'sim_nav': 'nav_grade', 'sim_mems': 'mems_mti1'}
 WRONG = ('axis0.3', 'axis1', 'flip_ax', 'swap_axy', 'grade', 'drop10')
 HONEST_Z = 4.0
+COUNTED = {'restarts', 'realignments', 'input.rejected', 'input.lost'}
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
@@ -128,21 +129,34 @@ def honest(root: Path, units: list[str], seeds: range) -> None:
             _print(f'honest {unit} seed {seed}', r)
             res.append((unit, r))
             shutil.rmtree(bag.parent, ignore_errors=True)
-    ok = [r for _, r in res if not r['raised'] and r['max_z'] <= HONEST_Z]
-    bad = [r for _, r in res if not r['raised'] and r['max_z'] > HONEST_Z]
-    fa = sum(r['refused'] for r in ok)
-    lo, hi = clopper_pearson(fa, len(ok))
+    done = [r for _, r in res if not r['raised']]
+    ok = [r for r in done if r['max_z'] <= HONEST_Z]
+    bad = [r for r in done if r['max_z'] > HONEST_Z]
+    # the design rate is that of the statistical checks on runs whose filter kept to its
+    # model: no counted evidence (restarts, re-alignments, lost or rejected input)
+    clean = [r for r in ok if not set(r['failed']) & COUNTED]
+    fa = sum(r['refused'] for r in clean)
+    lo, hi = clopper_pearson(fa, len(clean))
+    counted = sum(1 for r in ok if set(r['failed']) & COUNTED)
     det = sum(r['refused'] for r in bad)
-    raised = sum(1 for _, r in res if r['raised'])
+    raised = len(res) - len(done)
     for unit in units:
         u = [r for n, r in res if n == unit and not r['raised']]
         print(f'  {unit:16s} runs {len(u):3d}  refused {sum(r["refused"] for r in u):3d}  '
               f'dishonest {sum(r["max_z"] > HONEST_Z for r in u):3d}  silent dishonest '
               f'{sum(r["max_z"] > HONEST_Z and not r["refused"] for r in u):3d}')
+    checks: dict[str, int] = {}
+    for r in done:
+        for c in r['failed']:
+            checks[c] = checks.get(c, 0) + 1
+    print('  failed checks: ' + ', '.join(f'{k} {v}' for k, v in sorted(checks.items())))
     print(f'SUMMARY selfcheck honest: {len(res)} runs ({raised} refused by replay itself); '
-          f'false alarms {fa}/{len(ok)} honest calibrations = {100 * fa / max(len(ok), 1):.1f} % '
-          f'(95 % CI {100 * lo:.1f}-{100 * hi:.1f} %, design 1 %); dishonest calibrations '
-          f'(max|z| > {HONEST_Z:g}) {len(bad)}: refused {det}, silent {len(bad) - det}')
+          f'false alarms of the statistical checks {fa}/{len(clean)} = '
+          f'{100 * fa / max(len(clean), 1):.1f} % (95 % CI {100 * lo:.1f}-{100 * hi:.1f} %, '
+          f'design 1 %) on honest calibrations without counted evidence; honest calibrations '
+          f'refused on counted evidence (the filter re-aligned/restarted, input lost) '
+          f'{counted}/{len(ok)}; dishonest calibrations (max|z| > {HONEST_Z:g}) {len(bad)}: '
+          f'refused {det}, silent {len(bad) - det}')
 
 
 def _tilted_fixture(path: str, deg: float, out: Path) -> str:

@@ -213,3 +213,38 @@ def test_ten_percent_burst_drops_give_an_honest_calibration_or_a_refusal(
         assert max_z(out, truth) <= 4.0
     else:
         refused(rc, err, out, 'not used by the filter')
+
+
+def test_nis_accounting_covers_every_filter_of_the_run(tmp_path: Path) -> None:
+    """Gaps during moves re-initialise the navigation: each alignment starts a new filter with
+    new gate counters. The ledger's sums cover all of them (one velocity update per chunk)."""
+    from imu_calib_ros.core.estimator import load_estimator_config
+    from imu_calib_ros.core.estimator.replay import replay_run
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.msg_adapters.bag import iter_bag
+    bag, truth = make_case(tmp_path, unit='nav', seed=2, drop_fraction_imu=0.03)
+    run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None,
+                     load_estimator_config(None))
+    est = run.estimator
+    assert est.counters['gaps_reinitialised'] >= 5
+    nis, complete = run.ledger.nis_totals()
+    v = nis['velocity']
+    assert complete and v.accepted + v.rejected == est.counters['chunks']
+    last = est.health()['gate_accepted']['velocity']
+    assert v.accepted > 2 * last  # the newest filter alone saw a fraction of the run
+    ev = run.ledger.evidence()
+    assert ev.reinitialisations == est.counters['gaps_reinitialised']
+    assert 0.2 < 1 - ev.imu_used / (ev.imu_expected - ev.imu_before_first_alignment) < 0.5
+
+
+def test_the_report_shows_the_verdict(nav_case: tuple[Path, Any], tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    bag, truth = nav_case
+    out = tmp_path / 'c.yaml'
+    fx = str(_tilted(Path(truth.fixture_path), 0.3, tmp_path))
+    assert replay(capsys, bag, fx, out, '--force')[0] == 0
+    from imu_calib_ros.core.calibration import CalibrationResult
+    from imu_calib_ros.report import build_report
+    page = build_report(CalibrationResult.load(out))
+    assert 'Self-check of the run' in page and 'FAILED, written with force' in page
+    assert '<tr class="bad"><td>windows.chi2</td>' in page
