@@ -165,7 +165,7 @@ def test_a_wrong_fixture_axis_is_refused_and_forced_files_are_marked(
         nav_case: tuple[Path, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """0.3 deg off on the middle axis: the estimate itself stays within its sigmas (the gyros
-    carry the attitude), but the stationary windows contradict the fixture by ~500 sigma."""
+    carry the attitude), but the stationary windows contradict the fixture by ~180 sigma."""
     bag, truth = nav_case
     fx = str(_tilted(Path(truth.fixture_path), 0.3, tmp_path))
     out = tmp_path / 'c.yaml'
