@@ -186,7 +186,10 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
     out = tmp_path / 'c.yaml'
     rc, err = replay(capsys, bad, out)
     if rc != 0:
-        check_failed(rc, err, out, 'diverged')
+        # diverged for good, or recovered by re-alignments/restarts: the run's own evidence
+        # then fails its self-check (issue 17), which names it
+        check_failed(rc, err, out)
+        assert 'diverged' in err or 're-aligned' in err or 'restarted' in err, err
         return
     from imu_calib_ros.core.calibration import CalibrationResult
     calib = CalibrationResult.load(out)

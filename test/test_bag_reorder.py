@@ -248,8 +248,15 @@ def test_replay_of_a_receipt_jitter_bag_equals_the_stamp_ordered_one(
     assert prov['reorder'][JOINTS] == expected_stats(in_log_order[JOINTS]).as_dict()
     assert ref.extra['provenance']['bag_reader']['reorder'][IMU]['reordered'] == 0
     # log order, as before issue 17: the estimator drops the out-of-order samples and the
-    # calibration moves by more than the 0.1 sigma allowed above
-    unordered = replay('jittered0', '--quiet', '--reorder-window', '0')
+    # calibration moves by more than the 0.1 sigma allowed above; the self-check refuses it
+    # (exit 3, no file), --force writes it marked
+    log_order = tmp_path / 'jittered0.yaml'
+    assert main(['replay', str(tmp_path / 'jittered'), '--fixture', 'three_axis', '--output',
+                 str(log_order), '--quiet', '--reorder-window', '0']) == 3
+    assert 'rejected by the input guard' in capsys.readouterr().err
+    assert not log_order.exists()
+    unordered = replay('jittered0', '--quiet', '--reorder-window', '0', '--force')
+    assert not unordered.extra['provenance']['self_check']['passed']
     assert 'stay out of order' in capsys.readouterr().err
     z0 = np.abs(unordered.errors.as_vector() - ref.errors.as_vector())[free] / sigma[free]
     print(f'largest difference from the ordered bag: {z.max():.3g} sigma; in log order '

@@ -112,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
         return status
     except ImuCalibError as exc:
         print(f'imu-calib {args.command}: error: {exc}', file=sys.stderr)
-        return 2
+        status = int(getattr(exc, 'exit_status', 2))
+        return status
     except KeyboardInterrupt:
         print(f'imu-calib {args.command}: interrupted', file=sys.stderr)
         status = 130

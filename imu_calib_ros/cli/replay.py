@@ -2,11 +2,15 @@
 
     imu-calib replay BAG --fixture F --output CALIB.yaml [--imu-topic T] [--joint-topic T]
                      [--imu GRADE] [--config EST.yaml] [--iterations N] [--method ekf]
-                     [--reorder-window S]
+                     [--reorder-window S] [--force]
 
 CONTRACT 5: exit 0 on success; on unusable input one clear line, non-zero exit, and no
-(partial) output file. ``--method srt|oscillation`` runs
-``imu_calib_ros.core.methods.<name>.calibrate`` on the whole bag. The bag reader puts each
+(partial) output file. The EKF run is self-checked (issue 17, docs/ESTIMATOR.md
+"Self-check"): when its own evidence says the result is not trustworthy, one line naming the
+evidence, exit status 3 and no file; ``--force`` writes it anyway, marked as failing under
+``provenance.self_check`` (where a passed verdict and its figures go too).
+``--method srt|oscillation`` runs ``imu_calib_ros.core.methods.<name>.calibrate`` on the
+whole bag (no self-check). The bag reader puts each
 topic in header-stamp order (``--reorder-window``, docs/BAD_INPUT.md); what it reordered is
 printed on stderr and kept in the file under ``provenance.bag_reader``.
 """
@@ -16,7 +20,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.errors import InputError
+from ..core.errors import InputError, SelfCheckError
 from ..core.units import ENGINEERING
 from ..msg_adapters import DEFAULT_REORDER_WINDOW_S
 from . import add_topic_arguments, check_output_file
@@ -54,6 +58,9 @@ def register(subparsers: Any) -> None:
                    metavar='S', help='longest wait of a bag message to put its topic in '
                    'header-stamp order, in seconds of log time (rosbag2 logs the receipt '
                    f'time; default {DEFAULT_REORDER_WINDOW_S:g}; 0: no wait)')
+    p.add_argument('--force', action='store_true',
+                   help='write the calibration even when the run fails its self-check, '
+                   'marked as failing under provenance.self_check (default: refuse, exit 3)')
     p.add_argument('--quiet', action='store_true', help='no progress bar or summary')
     p.set_defaults(func=run)
 
@@ -123,6 +130,7 @@ def run(args: Any) -> int:
     if not Path(args.bag).exists():
         raise InputError(f'bag {args.bag} does not exist')
     reorder: dict[str, ReorderStats] = {}  # what the bag reader reordered, per topic
+    verdict = None  # the EKF's self-check
     if args.method != 'ekf':
         from ..core.methods import oscillation, srt
         method = {'srt': srt.calibrate, 'oscillation': oscillation.calibrate}[args.method]
@@ -143,7 +151,7 @@ def run(args: Any) -> int:
             _srt_note(calib.extra.get('srt', {}))
     else:
         from ..core.estimator import load_estimator_config
-        from ..core.estimator.replay import replay
+        from ..core.estimator.replay import replay_run
         config = load_estimator_config(args.config)
         bar = None
         if not args.quiet:
@@ -158,19 +166,36 @@ def run(args: Any) -> int:
             return passes[0]
 
         try:
-            est = replay(open_bag, fixture, grade, config, args.iterations,
-                         progress=bar.update if bar is not None else None)
+            run_ = replay_run(open_bag, fixture, grade, config, args.iterations,
+                              progress=bar.update if bar is not None else None)
         finally:
             if bar is not None:
                 bar.close()
-        calib = est.estimate()
+        calib = run_.estimator.estimate()
         reorder = passes[-1].reorder_stats
+        verdict = run_.verdict
+        if not verdict.passed and not args.force:
+            raise SelfCheckError(f'{verdict.line}; no calibration written (--force writes '
+                                 'it, marked as failing)')
     _reorder_note(reorder, args.reorder_window, args.quiet)
     calib = _with_provenance(calib, args, reorder)
+    if verdict is not None:  # the same rule as the node's save (core/estimator/selfcheck.py)
+        import dataclasses
+
+        from ..core.estimator.selfcheck import saved_extra
+        extra, _ = saved_extra(calib.extra, verdict.as_dict(), args.force)
+        assert extra is not None  # refused above
+        calib = dataclasses.replace(calib, extra=extra)
     calib.save(out)
+    if verdict is not None and not verdict.passed:
+        print(f'imu-calib replay: warning: {verdict.line}; written because of --force, marked '
+              'under provenance.self_check', file=sys.stderr)
     if not args.quiet:
         print(_summary(calib))
-        print(f'wrote {out}')
+        if verdict is not None:
+            print(verdict.line)
+        failed = '' if verdict is None or verdict.passed else ' (FAILED its self-check)'
+        print(f'wrote {out}{failed}')
     return 0
 
 

@@ -44,3 +44,11 @@ class BagError(ImuCalibError):
 
 class InputError(ImuCalibError):
     """Measurement data that cannot give a calibration (no motion, unknown joints, ...)."""
+
+
+class SelfCheckError(ImuCalibError):
+    """A run finished but its own evidence says the result cannot be trusted (issue 17): the
+    self-check's one line; the CLI exits with :attr:`exit_status` (3, not 2: the input was
+    usable) and writes nothing unless forced."""
+
+    exit_status = 3

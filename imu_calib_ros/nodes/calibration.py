@@ -36,6 +36,7 @@ docs/NODES.md.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import sys
 import time
@@ -54,6 +55,7 @@ from std_srvs.srv import Trigger
 from ..core.diagnostics import frame_mismatch, health_values
 from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
+from ..core.estimator.selfcheck import saved_extra
 from ..core.input_guard import rejection_counts
 from ..core.reorder import ReorderBuffer
 from ..core.types import JointSample
@@ -118,6 +120,9 @@ class CalibrationNodeConfig:
         'doc': 'where ~/save_calibration writes the calibration (CONTRACT 4)'})
     save_on_shutdown: bool = field(default=False, metadata={
         'doc': 'on SIGINT/SIGTERM, save the latest good estimate to output_file'})
+    force_save: bool = field(default=False, metadata={
+        'doc': 'save (service, shutdown) even when the run fails its self-check, marked as '
+               'failing under provenance.self_check; false: refuse (issue 17)'})
     estimate_rate_hz: float = field(default=1.0, metadata={
         'doc': 'rate of ~/estimates and the per-group Vector3Stamped [Hz]', 'min': 0.01,
         'max': 100.0})
@@ -527,12 +532,18 @@ class CalibrationNode(Node):
             return False, ('nothing to save: the estimator has not used any IMU data yet '
                            f'({health.get("imu_samples", 0)} samples received; it starts at a '
                            'stationary window with joint states)')
+        extra, why = saved_extra(good.result.extra, latest.selfcheck if latest else None,
+                                 self.config.force_save)
+        if extra is None:  # issue 17: never a plain file from a run its evidence condemns
+            return False, f'not saved, {why}; force_save:=true writes it marked as failing'
         try:
-            good.result.save(self.config.output_file)
+            dataclasses.replace(good.result, extra=extra).save(self.config.output_file)
         except (ImuCalibError, OSError) as exc:
             return False, f'cannot write {self.config.output_file}: {exc}'
         note = ' (the estimator diverged: last good estimate)' if good is not latest else ''
-        return True, f'{self.config.output_file}{note}'
+        failed = '' if extra['provenance']['self_check']['passed'] else \
+            ' (FAILED its self-check: written because of force_save)'
+        return True, f'{self.config.output_file}{note}{failed}'
 
     def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         response.success, response.message = self.save()

@@ -45,7 +45,9 @@ class Snapshot:
 
     ``result`` is a :class:`~imu_calib_ros.core.calibration.CalibrationResult` or None (none
     yet, or unusable); ``diverged`` is True when health or the values say the filter cannot
-    be trusted; ``error`` is the last refusal or failure message ('' if none).
+    be trusted; ``error`` is the last refusal or failure message ('' if none);
+    ``selfcheck`` the run's self-check verdict (``Verdict.as_dict()``, issue 17), computed
+    only for the snapshots a request asks for (save, shutdown), else None.
     """
 
     seq: int
@@ -54,6 +56,7 @@ class Snapshot:
     diverged: bool = False
     error: str = ''
     wall_time: float = field(default_factory=time.monotonic)
+    selfcheck: dict[str, Any] | None = None
 
 
 def is_diverged(health: dict[str, Any], result: Any) -> bool:
@@ -100,6 +103,14 @@ def reset_navigation(estimator: Any) -> Any:
     return estimator
 
 
+def _ledger(estimator: Any) -> Any:
+    """The self-check's :class:`~imu_calib_ros.core.estimator.run_ledger.RunLedger` of a
+    real estimator (None for the test doubles of other types)."""
+    from ..core.estimator import CalibrationEstimator
+    from ..core.estimator.run_ledger import RunLedger
+    return RunLedger(estimator) if isinstance(estimator, CalibrationEstimator) else None
+
+
 class _Serve:
     """The worker loop (thread or child process): pushes batches, posts snapshots/replies."""
 
@@ -107,6 +118,7 @@ class _Serve:
                  health_period_s: float = 0.5):
         self.factory = factory
         self.est = factory()
+        self.ledger = _ledger(self.est)
         self.frame_id = frame_id
         self.out_put = out_put
         self.health_period_s = health_period_s
@@ -131,6 +143,8 @@ class _Serve:
                 batch = ImuBatch(np.array([r[0] for r in run], np.int64),
                                  np.array([r[1] for r in run], float),
                                  np.array([r[2] for r in run], float), self.frame_id)
+            if self.ledger is not None:
+                self.ledger.imu(batch)
             self.est.push_imu_batch(batch)
             run.clear()
 
@@ -139,6 +153,8 @@ class _Serve:
                 if isinstance(s, JointSample):
                     if run:
                         flush_run()
+                    if self.ledger is not None:
+                        self.ledger.joints(s)
                     self.est.push_joint(s)
                 else:
                     run.append(s)
@@ -166,15 +182,22 @@ class _Serve:
         self._health_t = now
         self._unposted = False
         result = None
+        verdict = None
         if force or new_estimate:
             self._chunks = chunks
             try:
                 result = self.est.estimate(frame_id=self.frame_id)
             except (ImuCalibError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
                 self.error = f'no estimate: {exc}'
+        if force and result is not None and self.ledger is not None:
+            try:  # the whole run's evidence (issue 17): for saves, not every snapshot
+                verdict = self.ledger.verdict().as_dict()
+            except Exception as exc:  # noqa: BLE001 - report, never kill the worker
+                self.error = f'no self-check: {type(exc).__name__}: {exc}'
         self.seq += 1
         self.out_put(('snapshot', Snapshot(self.seq, result, health,
-                                           is_diverged(health, result), self.error)))
+                                           is_diverged(health, result), self.error,
+                                           selfcheck=verdict)))
 
     def handle(self, msg: tuple[Any, ...]) -> bool:
         """One queue message; False means stop."""
@@ -188,12 +211,17 @@ class _Serve:
             self.frame_id = msg[1]
         elif kind == 'reset':
             self.est.reset()
+            if self.ledger is not None:
+                self.ledger.reset()
             self.error = ''
             self._chunks = -1
             self.snapshot(force=True)
             self.out_put(('reply', msg[1], True))
         elif kind == 'reset_navigation':
-            self.est = reset_navigation(self.est)
+            est = reset_navigation(self.est)
+            if est is not self.est:  # a new estimator: a new run
+                self.ledger = _ledger(est)
+            self.est = est
             self._chunks = -1
             self.out_put(('reply', msg[1], True))
         elif kind == 'estimate':

@@ -186,6 +186,23 @@ def convergence_plot(extra: dict[str, Any]) -> str | None:
     return _png(fig)
 
 
+def selfcheck_table(extra: dict[str, Any]) -> str | None:
+    """The run's self-check (``provenance.self_check``, issue 17) as a table, or None."""
+    v = (extra.get('provenance', {}) or {}).get('self_check')
+    if not isinstance(v, dict):
+        return None
+    rows = ['<tr><th>check</th><th>value</th><th>limit</th><th>reading</th></tr>']
+    for name, c in (v.get('checks') or {}).items():
+        cls = '' if c.get('passed') else ' class="bad"'
+        val, lim = (f'{x:.4g}' if isinstance(x, (int, float)) else '-'
+                    for x in (c.get('value'), c.get('limit')))
+        rows.append(f'<tr{cls}><td>{html.escape(str(name))}</td><td>{val}</td><td>{lim}</td>'
+                    f'<td>{html.escape(str(c.get("text", "")))}</td></tr>')
+    cls = '' if v.get('passed') else ' class="bad"'
+    head = f'<p{cls}>{html.escape(str(v.get("summary", "")))}</p>'
+    return head + '<table>' + ''.join(rows) + '</table>'
+
+
 def build_report(calib: Any, truth: Any | None = None,
                  compare: Sequence[tuple[str, Any]] = (), title: str = 'IMU calibration',
                  nav_velocity: tuple[np.ndarray, np.ndarray] | None = None) -> str:
@@ -206,6 +223,9 @@ def build_report(calib: Any, truth: Any | None = None,
     parts = [f'<h1>{html.escape(title)}</h1>',
              '<h2>Methods side by side</h2>',
              comparison_table([(name, calib), *compare], truth)]
+    check = selfcheck_table(calib.extra)
+    if check:
+        parts += ['<h2>Self-check of the run</h2>', check]
     sections = [('Estimate convergence (3-sigma bands)', convergence_plot(calib.extra),
                  'no extra.history in the calibration file: convergence plot skipped'),
                 ('Navigated velocity in the oscillation cycles (Kozlov Fig. 4 analogue)',

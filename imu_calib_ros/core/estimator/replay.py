@@ -12,6 +12,7 @@ far ahead the joint states are, nor on the IMU batch sizes: tested).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
 import numpy as np
@@ -20,6 +21,8 @@ from ..errors import InputError
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from .config import EstimatorConfig
 from .estimator import CalibrationEstimator, Estimate
+from .run_ledger import RunLedger
+from .selfcheck import SelfCheckConfig, Verdict
 
 
 def _batches_of_samples(samples: Any, batch: int) -> Iterator[ImuBatch | JointBatch]:
@@ -67,6 +70,16 @@ def _batches_of_samples(samples: Any, batch: int) -> Iterator[ImuBatch | JointBa
         yield ImuBatch.from_samples(imu)
 
 
+@dataclass(frozen=True)
+class ReplayRun:
+    """A replay's estimator (after the last pass), the evidence of that pass and its
+    self-check verdict (:mod:`.selfcheck`)."""
+
+    estimator: CalibrationEstimator
+    ledger: RunLedger
+    verdict: Verdict
+
+
 def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
                 initial: Estimate | None = None, batch: int = 4000,
                 progress: Callable[[int], None] | None = None,
@@ -81,15 +94,25 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
         No IMU samples, no joint states of the fixture's joints, no stationary window for the
         alignment, or no motion.
     """
+    return _replay_pass(samples, fixture, grade, config, initial, batch, progress, start)[0]
+
+
+def _replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
+                 initial: Estimate | None, batch: int, progress: Callable[[int], None] | None,
+                 start: Any) -> tuple[CalibrationEstimator, RunLedger]:
+    """:func:`replay_pass` with the run's evidence (:class:`RunLedger`) fed alongside."""
     est = CalibrationEstimator(fixture, grade, config, initial=initial, start=start)
+    ledger = RunLedger(est)
     batches = samples.batches() if callable(getattr(samples, 'batches', None)) \
         else _batches_of_samples(samples, batch)
     for b in batches:
         if isinstance(b, ImuBatch):
+            ledger.imu(b)
             est.push_imu_batch(b)
             if progress is not None:
                 progress(len(b))
         else:
+            ledger.joints(b)
             est.push_joint_batch(b)
     est.flush()
     c = est.counters
@@ -111,7 +134,7 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
         # A diverged filter never becomes a calibration file (issue 6).
         raise InputError(f'the estimator diverged ({health["divergence_reason"]}); no '
                          'calibration written: check the IMU grade, units and the fixture file')
-    return est
+    return est, ledger
 
 
 def replay(open_samples: Callable[[], Any], fixture: Any, grade: Any,
@@ -125,12 +148,28 @@ def replay(open_samples: Callable[[], Any], fixture: Any, grade: Any,
     goes, so one pass is the default: measured, a second pass moves the nav-grade states by
     at most 0.014 sigma and the MEMS ones (encoder aiding) by 0.12 sigma (docs/ESTIMATOR.md).
     """
+    return _passes(open_samples, fixture, grade, config, iterations, progress)[0]
+
+
+def replay_run(open_samples: Callable[[], Any], fixture: Any, grade: Any,
+               config: EstimatorConfig, iterations: int = 1,
+               progress: Callable[[int], None] | None = None,
+               selfcheck: SelfCheckConfig | None = None) -> ReplayRun:
+    """:func:`replay`, with the self-check verdict of the last pass (issue 17)."""
+    est, ledger = _passes(open_samples, fixture, grade, config, iterations, progress)
+    return ReplayRun(est, ledger, ledger.verdict(selfcheck))
+
+
+def _passes(open_samples: Callable[[], Any], fixture: Any, grade: Any,
+            config: EstimatorConfig, iterations: int,
+            progress: Callable[[int], None] | None) -> tuple[CalibrationEstimator, RunLedger]:
     init: Estimate | None = None
     est = None
+    ledger = None
     for _ in range(max(1, iterations)):
         # later passes keep the first pass's coarse start (the prior mean)
-        est = replay_pass(open_samples(), fixture, grade, config, initial=init,
-                          progress=progress, start=None if est is None else est.start)
+        est, ledger = _replay_pass(open_samples(), fixture, grade, config, init, 4000,
+                                   progress, None if est is None else est.start)
         init = est.estimate_state()
-    assert est is not None
-    return est
+    assert est is not None and ledger is not None
+    return est, ledger

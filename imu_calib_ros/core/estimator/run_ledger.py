@@ -1,0 +1,332 @@
+"""The evidence of a calibration run for the self-check (issue 17): :class:`RunLedger`.
+
+The ledger sees the same input as the estimator (the caller hands it every batch it pushes)
+and reads the estimator's counters at the end; :func:`.selfcheck.judge` turns the figures into
+a verdict. What it keeps, in bounded memory:
+
+- the IMU stream's span and nominal period (how many samples the recording should hold) and
+  0.1 s bins of the raw sums (for the stationary-window means: ~70 bytes per second of data);
+- the joint record thinned to one sample per 20 ms (fixture order, unwrapped), from which the
+  stationary windows are found at the end (:func:`.coarse.static_windows`, the coarse start's
+  rule);
+- every :class:`~.ekf.GateCounters` of the run: the estimator starts a new filter at every
+  (re-)alignment, restart and navigation re-initialisation, so its own counters cover only
+  the newest filter. The ledger wraps the estimator's ``_start_filter`` to see each one, and
+  checks the sum against ``counters['chunks']`` (exactly one velocity update per chunk).
+
+Estimator internals read here (the accessors the estimator does not expose yet): the hook on
+``_start_filter``, ``_filter.counters``, the noise densities ``_noise`` and the adapted bias
+random walk ``_bias_q`` x ``_bias_q_scale`` (what the reported covariance assumed).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from .. import sensor_model as sm
+from ..input_guard import IMU_REASONS
+from ..rotation import skew
+from ..types import ImuBatch, JointBatch, JointSample
+from . import error_model as em
+from .coarse import static_windows
+from .estimator import RAW_PRIOR
+from .selfcheck import (NisTotals, RunEvidence, SelfCheckConfig, Verdict, WindowStatistics,
+                        judge, window_statistics)
+
+FloatArray = NDArray[np.float64]
+BIN_NS = 100_000_000  # IMU sums per 0.1 s
+JOINT_KEEP_NS = 20_000_000  # joint record thinned to one sample per 20 ms
+MIN_WINDOW_S = 1.0  # stationary windows of at least this (after the coarse start's trim)
+MAX_WINDOWS = 300  # the longest windows if there are more (a 1800 x 1800 covariance)
+JUMP_BACK_NS = 1_000_000_000  # a stamp this much older than the newest: a new recording
+PLAUSIBLE_GROUPS = ('gyro_scale', 'gyro_misalignment', 'accel_scale', 'accel_misalignment')
+
+
+class RunLedger:
+    """Whole-run evidence of one estimator (see the module docstring).
+
+    Call :meth:`imu` and :meth:`joints` with every batch pushed to the estimator, then
+    :meth:`evidence` or :meth:`verdict` after its ``flush()``; :meth:`reset` with the
+    estimator's ``reset()``.
+    """
+
+    def __init__(self, estimator: Any) -> None:
+        self.est = estimator
+        self._counters: list[Any] = []
+        self._first_drop: int | None = None
+        self._hook()
+        self.reset()
+
+    # ------------------------------------------------------------------ estimator side
+    def _hook(self) -> None:
+        est = self.est
+        start = getattr(est, '_start_filter', None)
+        if start is None or getattr(start, '_ledger_hook', False):
+            return
+
+        def start_filter() -> None:
+            start()
+            self._see_filter()
+
+        start_filter._ledger_hook = True  # type: ignore[attr-defined]
+        est._start_filter = start_filter
+
+    def _see_filter(self) -> None:
+        filt = getattr(self.est, '_filter', None)
+        c = getattr(filt, 'counters', None)
+        if c is None or any(c is k for k in self._counters):
+            return
+        if not self._counters:
+            self._first_drop = int(self.est.counters.get('imu_dropped_before_alignment', 0))
+        self._counters.append(c)
+
+    def reset(self) -> None:
+        """Forget the run (with the estimator's ``reset()``)."""
+        self._counters = []
+        self._first_drop = None
+        self._see_filter()
+        self._segments: list[int] = []  # expected samples of finished recordings
+        self._t_first: int | None = None
+        self._t_last: int | None = None
+        self._dt_ns: float = 0.0
+        self._dts: list[NDArray[np.int64]] = []
+        self._reset_windows()
+
+    def _reset_windows(self) -> None:
+        self._origin: int | None = None
+        self._bins = np.zeros((0, 7))  # count, gyro sum (3), accel sum (3)
+        self._jt: list[int] = []
+        self._jq: list[FloatArray] = []
+        self._jlast: FloatArray | None = None
+
+    # ------------------------------------------------------------------ input side
+    def imu(self, batch: ImuBatch) -> None:
+        """An IMU batch as pushed to the estimator."""
+        t = np.asarray(batch.stamps_ns, np.int64)
+        if not len(t):
+            return
+        w = np.asarray(batch.gyro_rad_s, float).reshape(-1, 3)
+        f = np.asarray(batch.accel_m_s2, float).reshape(-1, 3)
+        if self._t_last is not None and int(t.min()) < self._t_last - JUMP_BACK_NS:
+            self._close_segment()  # a looping bag or a restarted simulation
+            self._reset_windows()
+        if self._t_first is None:
+            self._t_first = int(t[0])
+        self._t_last = max(int(t.max()), self._t_last or int(t[0]))
+        if self._dt_ns == 0.0:
+            d = np.diff(t)
+            self._dts.append(d[d > 0])
+            dd = np.concatenate(self._dts)
+            if len(dd) >= 20:
+                self._dt_ns = float(np.median(dd))
+                self._dts = []
+        ok = np.all(np.isfinite(w), axis=1) & np.all(np.isfinite(f), axis=1)
+        if not ok.any():
+            return
+        t, w, f = t[ok], w[ok], f[ok]
+        if self._origin is None:
+            self._origin = int(t[0]) - int(t[0]) % BIN_NS
+        k = (t - self._origin) // BIN_NS
+        inside = k >= 0
+        k, w, f = k[inside], w[inside], f[inside]
+        if not len(k):
+            return
+        top = int(k.max()) + 1
+        if top > len(self._bins):
+            grown = np.zeros((max(top, 2 * len(self._bins)), 7))
+            grown[:len(self._bins)] = self._bins
+            self._bins = grown
+        vals = np.column_stack([np.ones(len(k)), w, f])
+        for c in range(7):
+            self._bins[:top, c] += np.bincount(k, vals[:, c], minlength=top)
+
+    def joints(self, batch: JointBatch | JointSample) -> None:
+        """Joint states as pushed to the estimator (a batch or one sample)."""
+        if isinstance(batch, JointSample):
+            t = np.array([batch.stamp_ns], np.int64)
+            q = np.asarray(batch.positions_rad, float).reshape(1, -1)
+        else:
+            t = np.asarray(batch.stamps_ns, np.int64)
+            q = np.asarray(batch.positions_rad, float).reshape(len(t), -1)
+        try:
+            idx = [list(batch.names).index(n) for n in self.est.fixture.joint_names]
+        except ValueError:
+            return
+        q = q[:, idx]
+        for ti, qi in zip(t.tolist(), q):
+            if not np.all(np.isfinite(qi)):
+                continue
+            if self._jt and ti < self._jt[-1] + JOINT_KEEP_NS:
+                if ti < self._jt[-1] - JUMP_BACK_NS:
+                    self._reset_windows()
+                else:
+                    continue
+            last = self._jlast
+            if last is not None:  # unwrap against the previous kept sample
+                qi = qi + 2 * np.pi * np.round((last - qi) / (2 * np.pi))
+            self._jlast = qi
+            self._jt.append(ti)
+            self._jq.append(qi)
+
+    def _close_segment(self) -> None:
+        if self._t_first is not None and self._t_last is not None and self._dt_ns > 0:
+            self._segments.append(int(round((self._t_last - self._t_first) / self._dt_ns)) + 1)
+        self._t_first = self._t_last = None
+
+    # ------------------------------------------------------------------ evidence
+    def nis_totals(self) -> tuple[dict[str, NisTotals], bool]:
+        """Whole-run gate counts per measurement kind, and whether every filter was seen."""
+        self._see_filter()
+        acc: dict[str, int] = {}
+        rej: dict[str, int] = {}
+        tot: dict[str, float] = {}
+        for c in self._counters:
+            for k, v in c.accepted.items():
+                acc[k] = acc.get(k, 0) + int(v)
+            for k, v in c.rejected.items():
+                rej[k] = rej.get(k, 0) + int(v)
+            for k, v in c.nis_sum.items():
+                tot[k] = tot.get(k, 0.0) + float(v)
+        kinds = sorted(set(acc) | set(rej))
+        out = {k: NisTotals(acc.get(k, 0), rej.get(k, 0), tot.get(k, 0.0)) for k in kinds}
+        v = out.get('velocity')
+        n_v = 0 if v is None else v.accepted + v.rejected
+        return out, n_v == int(self.est.counters.get('chunks', 0))
+
+    def expected_samples(self) -> int:
+        """IMU samples the recording's stamps span at the nominal rate."""
+        n = sum(self._segments)
+        if self._t_first is not None and self._t_last is not None and self._dt_ns > 0:
+            n += int(round((self._t_last - self._t_first) / self._dt_ns)) + 1
+        return n
+
+    def evidence(self) -> RunEvidence:
+        """The figures of the run so far (call after the estimator's ``flush()``)."""
+        est = self.est
+        c = est.counters
+        h = est.health()
+        nis, complete = self.nis_totals()
+        raw, label, n_raw = self.raw_ratio()
+        rejected = sum(int(h['rejected'].get(r, 0)) for r in IMU_REASONS)
+        received = int(c.get('imu_samples', 0))
+        return RunEvidence(
+            imu_received=received, imu_expected=max(self.expected_samples(), received),
+            imu_rejected=rejected, imu_used=int(c.get('imu_processed', 0)),
+            imu_before_first_alignment=int(self._first_drop or 0),
+            restarts=int(c.get('restarts', 0)), realignments=int(c.get('realignments', 0)),
+            reinitialisations=int(c.get('gaps_reinitialised', 0))
+            + int(c.get('navigation_resets', 0)),
+            gate_probability=float(est.config.gate_probability), nis=nis,
+            windows=self.window_statistics(), nis_complete=complete, raw_ratio=raw,
+            raw_label=label, raw_states=n_raw)
+
+    def raw_ratio(self) -> tuple[float, str, int]:
+        """Largest ``|estimate| / RAW_PRIOR`` over the scale and misalignment states (the
+        estimator's raw-unit prior: 3 %, 30 mrad, the largest an uncalibrated unit is
+        specified for), where a wrong sign (scale -2), axis order (misalignment ~1) or unit
+        (57.3, 1/9.8) shows; biases, G and the size effect have no such signature."""
+        st = self.est.estimate_state()
+        lay = self.est.layout
+        worst, where, n = 0.0, '', 0
+        for g in lay.groups:
+            if g not in PLAUSIBLE_GROUPS:
+                continue
+            sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
+            r = np.abs(st.values[sl]) / RAW_PRIOR[g]
+            n += len(r)
+            j = int(np.argmax(r))
+            if r[j] > worst or not math.isfinite(r[j]):
+                worst, where = float(r[j]), st.labels[sl.start + j]
+        return worst, where, n
+
+    def verdict(self, config: SelfCheckConfig | None = None) -> Verdict:
+        """:func:`.selfcheck.judge` of :meth:`evidence`."""
+        return judge(self.evidence(), config)
+
+    # ------------------------------------------------------------------ stationary windows
+    def windows(self) -> list[tuple[int, int, FloatArray, FloatArray, FloatArray, int]]:
+        """Stationary windows ``(t0_ns, t1_ns, q, gyro mean, accel mean, samples)``."""
+        if len(self._jt) < 2 or self._origin is None:
+            return []
+        cnt = self._bins[:, 0]
+        k = np.nonzero(cnt > 0)[0]
+        if not len(k):
+            return []
+        t_bin = self._origin + k * BIN_NS + BIN_NS // 2
+        sums = self._bins[k]
+        tj = np.array(self._jt, np.int64)
+        qj = np.array(self._jq)
+        tol = float(self.est.config.stationary_joint_tolerance_rad)
+        found = static_windows(tj, qj, t_bin, sums[:, 1:4] / sums[:, :1],
+                               sums[:, 4:7] / sums[:, :1], MIN_WINDOW_S, tol)
+        out = []
+        for win in found:
+            # whole bins inside the window (the coarse rule already trimmed 0.3 s)
+            b0 = int(np.searchsorted(t_bin, win.t0_ns + BIN_NS // 2))
+            b1 = int(np.searchsorted(t_bin, win.t1_ns - BIN_NS // 2, side='right'))
+            s = sums[b0:b1].sum(axis=0)
+            if s[0] < 10:
+                continue
+            out.append((win.t0_ns, win.t1_ns, win.q_rad, s[1:4] / s[0], s[4:7] / s[0],
+                        int(s[0])))
+        if len(out) > MAX_WINDOWS:
+            keep = sorted(sorted(range(len(out)), key=lambda i: -out[i][5])[:MAX_WINDOWS])
+            out = [out[i] for i in keep]
+        return out
+
+    def window_statistics(self) -> WindowStatistics | None:
+        """Residuals of the stationary windows against the current estimate (None if fewer
+        than two windows or the filter never ran)."""
+        est = self.est
+        wins = self.windows()
+        if len(wins) < 2 or not self._counters or self._dt_ns <= 0 or self._t_last is None:
+            return None
+        st = est.estimate_state()
+        lay = est.layout
+        m = lay.n - 6
+        errors = em.errors_from_theta(st.theta_gyro, st.theta_accel, sm.SensorErrors)
+        K = len(wins)
+        wm = np.array([x[3] for x in wins])
+        fm = np.array([x[4] for x in wins])
+        q = np.array([x[2] for x in wins])
+        n = np.array([x[5] for x in wins], float)
+        t_mid = np.array([0.5 * (x[0] + x[1]) for x in wins])
+        fx = est.fixture
+        R = fx.R_enu_imu(q) @ Rotation.from_rotvec(st.mounting_rotvec_rad).as_matrix()
+        g_enu = np.array([0.0, 0.0, fx.site.gravity])
+        om_enu = np.asarray(fx.site.omega_ie_enu, float)
+        f_pred = np.einsum('kji,j->ki', R, g_enu)
+        w_pred = np.einsum('kji,j->ki', R, om_enu)
+        zero = np.zeros_like(wm)
+        w_c, f_c = sm.compensate(errors, wm, fm, zero)
+        resid = np.hstack([w_c - w_pred, f_c - f_pred])
+        Jg, Ja = em.compensated_jacobians(errors, w_c, zero, f_c)
+        jac = np.zeros((K, 6, m))
+        jac[:, 0:3, lay.gyro_state_idx - 6] = Jg[:, :, lay.gyro_cols]
+        jac[:, 3:6, lay.accel_state_idx - 6] = Ja[:, :, lay.accel_cols]
+        # what the filter assumed: its white noise, its (adapted) bias random walk
+        k_noise = float(est.config.noise_scale)
+        n_g, n_a = (k_noise * float(v) for v in est._noise)
+        scale = float(getattr(est, '_bias_q_scale', 1.0))
+        q_g, q_a = (scale * float(v) for v in est._bias_q)
+        T = n * self._dt_ns * 1e-9
+        sigma = np.column_stack([np.repeat((n_g / np.sqrt(T))[:, None], 3, 1),
+                                 np.repeat((n_a / np.sqrt(T))[:, None], 3, 1)])
+        tau = np.clip((self._t_last - t_mid) * 1e-9, 0.0, None)
+        brown = np.minimum.outer(tau, tau)
+        walk = np.concatenate([np.repeat((q_g * brown)[:, :, None], 3, 2),
+                               np.repeat((q_a * brown)[:, :, None], 3, 2)], axis=2)
+        # nuisance: the mounting (right) and the table base (left) rotation
+        nuis = np.zeros((K, 6, 6))
+        nuis[:, 0:3, 0:3] = skew(w_pred)
+        nuis[:, 3:6, 0:3] = skew(f_pred)
+        nuis[:, 0:3, 3:6] = np.swapaxes(R, 1, 2) @ skew(om_enu)
+        nuis[:, 3:6, 3:6] = np.swapaxes(R, 1, 2) @ skew(g_enu)
+        if not (np.all(np.isfinite(resid)) and np.all(np.isfinite(st.covariance))):
+            return WindowStatistics(K, math.inf, 6 * K - 6, math.inf, 'non-finite', 1)
+        return window_statistics(resid, jac, st.covariance, sigma, walk, nuis,
+                                 tuple(st.labels))

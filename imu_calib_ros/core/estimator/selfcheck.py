@@ -1,0 +1,370 @@
+"""Self-check of a calibration run: does the run's own evidence say it can be trusted (issue 17)?
+
+A pure function of plain figures (:class:`RunEvidence`) to a :class:`Verdict`; nothing here
+knows the estimator, ROS or files (:mod:`.run_ledger` gathers the figures from a run).
+
+The checks and their thresholds
+-------------------------------
+Statistical checks, each a one-sided test at the false-alarm probability ``alpha`` per check,
+with ``alpha = 1 - (1 - false_alarm) ** (1 / STATISTICAL_CHECKS)`` (Sidak), so that a run whose
+model holds fails the whole self-check with probability at most ``false_alarm`` (1 % by
+default; ``alpha`` = 0.2 %; checks that do not apply to a run keep their share):
+
+``nis.velocity``, ``nis.attitude``
+    The sum of the normalised innovation squares of every accepted update of that kind over
+    the whole run (all filters: re-alignments and restarts start new ones) against
+    ``chi2(3 n)``: a consistent Kalman filter's innovations are white with covariance ``S``
+    (Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to Tracking and Navigation*,
+    sect. 5.4). Upper tail only: a sum below its band means the stated measurement noise is
+    pessimistic (the sigmas are conservative), which is reported but not a reason to refuse.
+``gate``
+    Gated (rejected) updates over all updates against ``Binomial(n, 1 - gate_probability)``:
+    the number a consistent filter rejects by chance (the gated NIS are not in the sums).
+``windows.chi2``
+    The stationary windows (every joint still for >= 1 s): the compensated mean rate and
+    specific force of each window minus the earth rate and gravity at the fixture's attitude,
+    i.e. the attitude and velocity drift rates there, against the covariance the reported
+    calibration predicts (window noise from the white-noise densities, the bias random walk
+    between the window and the end of the run, ``J P J^T``); the mounting and the table's
+    base orientation are nuisance rotations projected out (``chi2(6 K - 6)``).
+``windows.worst``
+    The same residuals resolved along the directions the calibration covariance predicts
+    (generalised eigenvectors of ``J P J^T`` against the rest): each is N(0, 1) for an honest
+    calibration, and one parameter off by many sigmas shows in one of them, where the
+    omnibus ``chi2`` over hundreds of degrees of freedom would dilute it. Largest ``|y|``
+    against the Sidak bound over the number of directions.
+
+Counted evidence, with no false alarms when the model holds (the estimator's own triggers
+have probabilities below 1e-40 then):
+
+``restarts``
+    A divergence restart (mean NIS per dof above 20 over 50 updates, half of them gated, or
+    a state beyond 50 prior sigmas) means the filter left its model.
+``realignments``
+    A run of ``cascade_updates`` gated updates in a row (10: ``(1e-5) ** 10`` by chance).
+``input.rejected``
+    The fraction of IMU samples the input guard rejected (every reason is a violation of
+    CONTRACT 1: non-finite, duplicate or out-of-order stamps, ...): above
+    ``max_rejected_fraction`` (1 %, the level at which the calibration node already warns,
+    ``warn_rejected_fraction``) the stream is systematically not what the contract says (the
+    issue's bag: 12.6 % out of order, a calibration 20 sigma off).
+``input.lost``
+    The fraction of the recording the filter did not use (samples missing in gaps, rejected,
+    dropped at gaps and while re-aligning after the first alignment): above
+    ``max_lost_fraction`` (1/2) the filter's evidence covers less of the run than it missed.
+
+The verdict is the list of checks; :attr:`Verdict.line` names the failed evidence in one line.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import eigh
+from scipy.stats import binom, chi2, norm
+
+FloatArray = NDArray[np.float64]
+
+#: the statistical checks the false-alarm probability is shared between (Sidak)
+STATISTICAL_CHECKS = ('nis.velocity', 'nis.attitude', 'gate', 'windows.chi2', 'windows.worst',
+                      'plausible')
+MEASUREMENT_DOF = 3  # every measurement of the estimator is 3-D (velocity, attitude)
+MIN_CALIBRATION_SHARE = 1.0  # windows.worst: directions where J P J^T >= the window noise
+
+
+@dataclass(frozen=True)
+class SelfCheckConfig:
+    """The design of the self-check (see the module docstring for each figure)."""
+
+    false_alarm: float = 0.01  # probability that an honest run fails the whole self-check
+    max_rejected_fraction: float = 0.01
+    max_lost_fraction: float = 0.5
+    max_restarts: int = 0
+    max_realignments: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.false_alarm < 0.5:
+            raise ValueError(f'false_alarm must be in (0, 0.5), got {self.false_alarm}')
+
+    @property
+    def alpha(self) -> float:
+        """False-alarm probability of one statistical check (Sidak share)."""
+        return 1.0 - (1.0 - self.false_alarm) ** (1.0 / len(STATISTICAL_CHECKS))
+
+
+@dataclass(frozen=True)
+class NisTotals:
+    """Whole-run gate counts of one measurement kind."""
+
+    accepted: int
+    rejected: int
+    nis_sum: float
+    dof: int = MEASUREMENT_DOF
+
+
+@dataclass(frozen=True)
+class WindowStatistics:
+    """Stationary-window residual statistics (:func:`window_statistics`)."""
+
+    windows: int
+    chi2: float
+    dof: int
+    worst: float  # largest |y| along the calibration directions
+    worst_direction: str  # the calibration state that direction loads on most
+    directions: int
+
+
+@dataclass(frozen=True)
+class RunEvidence:
+    """Plain figures of one run, as :mod:`.run_ledger` gathers them."""
+
+    imu_received: int  # IMU samples pushed to the estimator
+    imu_expected: int  # samples the stamps' span holds at the nominal rate (>= received)
+    imu_rejected: int  # rejected by the input guard
+    imu_used: int  # processed by the filter
+    imu_before_first_alignment: int  # dropped before the filter first started (not lost)
+    restarts: int
+    realignments: int
+    reinitialisations: int  # navigation re-initialised at gaps or time jumps (information)
+    gate_probability: float
+    nis: dict[str, NisTotals] = field(default_factory=dict)
+    windows: WindowStatistics | None = None
+    raw_ratio: float = 0.0  # largest |sensor error estimate| / raw-unit prior sigma
+    raw_label: str = ''  # the state it belongs to
+    raw_states: int = 0  # sensor-error states compared
+    nis_complete: bool = True  # every filter of the run was seen (else the sums are partial)
+
+
+@dataclass(frozen=True)
+class Check:
+    """One piece of evidence: its figure, the limit it is held to, and a one-line reading."""
+
+    name: str
+    passed: bool
+    value: float
+    limit: float
+    text: str
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Pass or fail, and every check with its figure."""
+
+    passed: bool
+    checks: tuple[Check, ...]
+    false_alarm: float
+    alpha: float
+
+    @property
+    def failed(self) -> tuple[Check, ...]:
+        """The checks that failed."""
+        return tuple(c for c in self.checks if not c.passed)
+
+    @property
+    def line(self) -> str:
+        """One line: 'self-check passed' or the failed evidence."""
+        if self.passed:
+            return (f'self-check passed ({len(self.checks)} checks, false-alarm rate '
+                    f'{100 * self.false_alarm:g} %)')
+        return 'self-check failed: ' + '; '.join(c.text for c in self.failed)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain YAML data for the calibration file's provenance."""
+        return {'passed': self.passed, 'summary': self.line,
+                'false_alarm': self.false_alarm, 'alpha_per_check': self.alpha,
+                'checks': {c.name: {'passed': c.passed, 'value': _plain(c.value),
+                                    'limit': _plain(c.limit), 'text': c.text}
+                           for c in self.checks}}
+
+
+def _plain(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
+    """The verdict on ``ev`` (pure)."""
+    cfg = config or SelfCheckConfig()
+    a = cfg.alpha
+    checks: list[Check] = []
+    # --- counted evidence
+    checks.append(Check('restarts', ev.restarts <= cfg.max_restarts, ev.restarts,
+                        cfg.max_restarts, f'the filter diverged and restarted {ev.restarts} '
+                        'time(s)'))
+    checks.append(Check('realignments', ev.realignments <= cfg.max_realignments,
+                        ev.realignments, cfg.max_realignments,
+                        f'the navigation was re-aligned {ev.realignments} time(s) after runs '
+                        'of gated updates'))
+    rej = ev.imu_rejected / max(ev.imu_received, 1)
+    checks.append(Check('input.rejected', rej <= cfg.max_rejected_fraction, rej,
+                        cfg.max_rejected_fraction,
+                        f'{100 * rej:.3g} % of the IMU samples rejected by the input guard '
+                        f'(limit {100 * cfg.max_rejected_fraction:g} %)'))
+    plan = max(ev.imu_expected - ev.imu_before_first_alignment, 1)
+    lost = min(max(1.0 - ev.imu_used / plan, 0.0), 1.0)
+    checks.append(Check('input.lost', lost <= cfg.max_lost_fraction, lost,
+                        cfg.max_lost_fraction,
+                        f'{100 * lost:.3g} % of the recording after the first alignment not '
+                        f'used by the filter (gaps, rejections, {ev.reinitialisations} '
+                        f'navigation re-initialisation(s); limit {100 * cfg.max_lost_fraction:g}'
+                        ' %)'))
+    # --- statistical checks, each at alpha
+    for kind in ('velocity', 'attitude'):
+        t = ev.nis.get(kind)
+        if t is None or t.accepted == 0:
+            continue
+        dof = t.dof * t.accepted
+        limit = float(chi2.isf(a, dof))
+        low = float(chi2.ppf(a, dof))
+        note = ' (below its band: pessimistic noise)' if t.nis_sum < low else ''
+        partial = '' if ev.nis_complete else ' (sums of the filters seen; some missed)'
+        checks.append(Check(f'nis.{kind}', t.nis_sum <= limit, t.nis_sum / dof,
+                            limit / dof, f'{kind} NIS per dof {t.nis_sum / dof:.3g} over '
+                            f'{t.accepted} updates, above its chi-square bound {limit / dof:.3g}'
+                            f'{note}{partial}'))
+    n_upd = sum(t.accepted + t.rejected for t in ev.nis.values())
+    n_rej = sum(t.rejected for t in ev.nis.values())
+    if n_upd:
+        p0 = max(1.0 - ev.gate_probability, 0.0)
+        # the smallest count whose upper-tail probability is below alpha
+        limit_r = int(binom.isf(a, n_upd, p0)) if p0 > 0 else 0
+        checks.append(Check('gate', n_rej <= limit_r, n_rej, limit_r,
+                            f'{n_rej} of {n_upd} measurement updates gated (a consistent filter '
+                            f'gates at most {limit_r} at this false-alarm rate)'))
+    if ev.raw_states:
+        bound = worst_bound(a, ev.raw_states)
+        checks.append(Check('plausible', ev.raw_ratio <= bound, ev.raw_ratio, bound,
+                            f'{ev.raw_label} is {ev.raw_ratio:.3g} raw-unit sigmas from zero '
+                            f'(bound {bound:.3g}): a sign, axis order or unit the sensor '
+                            'model does not describe'))
+    w = ev.windows
+    if w is not None and w.dof > 0:
+        limit = float(chi2.isf(a, w.dof))
+        checks.append(Check('windows.chi2', w.chi2 <= limit, w.chi2 / w.dof, limit / w.dof,
+                            f'stationary-window residuals chi2/dof {w.chi2 / w.dof:.3g} over '
+                            f'{w.windows} windows, above {limit / w.dof:.3g}'))
+    if w is not None and w.directions > 0:
+        bound = worst_bound(a, w.directions)
+        checks.append(Check('windows.worst', w.worst <= bound, w.worst, bound,
+                            f'a stationary-window residual {w.worst:.3g} sigma along '
+                            f'{w.worst_direction} (bound {bound:.3g} over {w.directions} '
+                            'directions)'))
+    return Verdict(all(c.passed for c in checks), tuple(checks), cfg.false_alarm, a)
+
+
+def worst_bound(alpha: float, n: int) -> float:
+    """``|y|`` bound of the largest of ``n`` independent N(0, 1) at false alarm ``alpha``."""
+    per = 1.0 - (1.0 - alpha) ** (1.0 / max(n, 1))
+    return float(norm.isf(per / 2.0))
+
+
+def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: FloatArray,
+                      walk_cov: FloatArray, nuisance: FloatArray,
+                      labels: tuple[str, ...] = ()) -> WindowStatistics:
+    """Chi-square and directed statistics of stationary-window residuals.
+
+    Parameters
+    ----------
+    resid : (K, 6)
+        Per window, compensated mean rate and specific force minus their predictions (SI).
+    jac : (K, 6, m)
+        ``d resid / d x`` up to sign, ``x`` the calibration states (estimate minus truth).
+    P : (m, m)
+        Covariance of the calibration states (SI).
+    sigma : (K, 6)
+        White-noise sigma of each window mean (density / sqrt(duration)).
+    walk_cov : (K, K, 6)
+        Covariance of the bias random walk between the windows and the estimate's instant,
+        per component.
+    nuisance : (K, 6, r)
+        Derivatives of the prediction by nuisance parameters (rotations) projected out.
+    labels : m names of the calibration states (for the worst direction).
+    """
+    K = resid.shape[0]
+    m = jac.shape[2]
+    n = 6 * K
+    s = sigma.reshape(n)
+    r = resid.reshape(n) / s
+    J = jac.reshape(n, m) / s[:, None]
+    W = np.zeros((n, n))
+    for c in range(6):  # component c of every window
+        W[c::6, c::6] = walk_cov[:, :, c]
+    W /= np.outer(s, s)
+    A = nuisance.reshape(n, -1) / s[:, None]
+    U, sv, _ = np.linalg.svd(A, full_matrices=True)
+    rank_a = int(np.sum(sv > sv.max() * max(A.shape) * np.finfo(float).eps)) if sv.size else 0
+    Z = U[:, rank_a:]  # orthonormal basis of the residuals the nuisance cannot produce
+    rz = Z.T @ r
+    Jz = Z.T @ J
+    Nz = Z.T @ (np.eye(n) + W) @ Z
+    Bz = Jz @ P @ Jz.T
+    C = Nz + Bz
+    L = np.linalg.cholesky(0.5 * (C + C.T))
+    u = np.linalg.solve(L, rz)
+    stat = float(u @ u)
+    dof = int(Z.shape[1])
+    # directions of the calibration covariance: B v = lambda N v, y = v^T r / sqrt(1 + lambda)
+    # only where the calibration's share is at least the window noise's (lambda >= 1): the
+    # noise-dominated directions test the noise model, not the calibration (and their
+    # eigenvectors are ill-determined at lambda ~ 0)
+    lam, V = eigh(0.5 * (Bz + Bz.T), 0.5 * (Nz + Nz.T))
+    keep = lam >= MIN_CALIBRATION_SHARE
+    worst, where, n_dir = 0.0, '', int(keep.sum())
+    if n_dir:
+        lam_k, V_k = lam[keep], V[:, keep]
+        y = (V_k.T @ rz) / np.sqrt(1.0 + lam_k)
+        j = int(np.argmax(np.abs(y)))
+        worst = float(abs(y[j]))
+        # the state this direction loads on most, in units of its sigma
+        sd = np.sqrt(np.clip(np.diag(P), 1e-300, None))
+        load = (P @ (Jz.T @ V_k[:, j])) / sd
+        where = labels[int(np.argmax(np.abs(load)))] if labels else str(int(np.argmax(
+            np.abs(load))))
+    return WindowStatistics(K, stat, dof, worst, where, n_dir)
+
+
+def evidence_dict(ev: RunEvidence) -> dict[str, Any]:
+    """Plain data of the evidence (provenance)."""
+    d = asdict(ev)
+    d['nis'] = {k: asdict(v) for k, v in ev.nis.items()}
+    return d
+
+
+# ---------------------------------------------------------------------------- the file side
+#: where the verdict goes in a calibration file: ``imu_calibration.provenance.self_check``
+PROVENANCE_KEY = 'self_check'
+
+
+def with_verdict(extra: dict[str, Any], verdict: dict[str, Any],
+                 forced: bool = False) -> dict[str, Any]:
+    """``extra`` (a calibration's extra keys) with the verdict under
+    ``provenance.self_check``; ``forced`` marks a file written although it failed."""
+    out = dict(extra)
+    prov = dict(out.get('provenance', {}) or {})
+    v = dict(verdict)
+    if forced and not v.get('passed', False):
+        v['forced'] = True
+        v['summary'] = 'FAILED, written with force: ' + str(v.get('summary', ''))
+    prov[PROVENANCE_KEY] = v
+    out['provenance'] = prov
+    return out
+
+
+def verdict_of(extra: dict[str, Any]) -> dict[str, Any] | None:
+    """The verdict a calibration's extra keys carry, or None."""
+    v = (extra.get('provenance', {}) or {}).get(PROVENANCE_KEY)
+    return v if isinstance(v, dict) else None
+
+
+def saved_extra(extra: dict[str, Any], verdict: dict[str, Any] | None,
+                force: bool) -> tuple[dict[str, Any] | None, str]:
+    """The rule for writing a calibration (the node's save service and save on shutdown; the
+    CLI's ``--force``): ``(extra with the verdict, '')`` when it passed or ``force`` is set
+    (marked), else ``(None, why)``. A missing verdict counts as failed."""
+    v = verdict if verdict is not None else {
+        'passed': False, 'summary': 'no self-check verdict (the estimator diverged or failed)'}
+    if not v.get('passed', False) and not force:
+        return None, str(v.get('summary', 'self-check failed'))
+    return with_verdict(extra, v, forced=force), ''

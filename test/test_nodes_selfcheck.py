@@ -1,0 +1,106 @@
+"""Issue 17 item 2 live: the calibration node's save service and save on shutdown refuse a run
+that fails its self-check (no file; exit 1 after a refused save on shutdown) unless
+``force_save``, which writes it marked as failing. Real DDS, as test/test_nodes.py."""
+from __future__ import annotations
+
+import os
+import random
+import signal
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 200)))
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+import rclpy  # noqa: E402
+from ros_helpers import spin_until, start_node, stop_node  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+
+from imu_calib_ros.core.config import share_dir  # noqa: E402
+
+PLAN = ('name: t\ndescription: short\nsteps:\n  - dwell: {duration_s: 4}\n'
+        '  - rotate_imu: {axis: z, angle_deg: 180, duration_s: 3}\n'
+        '  - dwell: {duration_s: 3}\n')
+
+
+@pytest.fixture(scope='module')
+def ros() -> Iterator[Node]:
+    rclpy.init(args=[])
+    node = rclpy.create_node(f'test_nodes_selfcheck_{os.getpid()}')
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def wrong_fixture(tmp: Path) -> Path:
+    """three_axis with its inner axis (the plan's rotation) tilted by 2 deg."""
+    d = yaml.safe_load((share_dir() / 'config' / 'fixtures' / 'three_axis.yaml').read_text())
+    d['joints'][2]['axis'] = [float(x) for x in Rotation.from_rotvec(
+        [0.0, 0.0, np.radians(2.0)]).apply(d['joints'][2]['axis'])]
+    p = tmp / 'wrong_fixture.yaml'
+    p.write_text(yaml.safe_dump(d))
+    return p
+
+
+def run_and_save(ros: Node, tmp: Path, force: bool) -> tuple[Any, str, int | None, Path]:
+    """Simulated plan into a node with the wrong fixture; ~/save_calibration at the end, then
+    SIGINT (save on shutdown). Returns (service response, log, exit status, output path)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import Trigger
+    plan = tmp / 'plan.yaml'
+    plan.write_text(PLAN)
+    out = tmp / 'calib.yaml'
+    cal = start_node('calibration', {'fixture': str(wrong_fixture(tmp)), 'use_sim_time': True,
+                                     'output_file': str(out), 'save_on_shutdown': True,
+                                     'force_save': force, 'diagnostics_rate_hz': 2.0}, tmp)
+    sim = start_node('turntable_sim', {'plan': str(plan), 'speed': 2.0,
+                                       'wait_for_subscribers': 1, 'start_stamp_s': 5000.0}, tmp)
+    diags: list[Any] = []
+    sub = ros.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    save = ros.create_client(Trigger, '/calibration/save_calibration')
+    log, status, resp = '', None, None
+    try:
+        assert save.wait_for_service(timeout_sec=60.0), stop_node(cal)
+        assert spin_until(ros, lambda: any(d.header.stamp.sec >= 5010 for d in diags), 90.0), \
+            stop_node(sim) + stop_node(cal)
+        fut = save.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=60.0)
+        resp = fut.result()
+    finally:
+        log = stop_node(sim)
+        if resp is not None:
+            log += stop_node(cal, signal.SIGINT, wait_s=60.0)
+            status = cal.returncode
+        else:
+            log += stop_node(cal)
+        ros.destroy_subscription(sub)
+        ros.destroy_client(save)
+    return resp, log, status, out
+
+
+def test_a_run_failing_its_self_check_is_not_saved(ros: Node, tmp_path: Path) -> None:
+    resp, log, status, out = run_and_save(ros, tmp_path, force=False)
+    assert resp is not None and not resp.success, resp
+    assert 'self-check failed' in resp.message and 'force_save' in resp.message, resp.message
+    assert status == 1, log[-2000:]  # the refused save on shutdown
+    assert 'save on shutdown: not saved, self-check failed' in log, log[-2000:]
+    assert not out.exists()
+    assert 'Traceback' not in log, log
+
+
+def test_force_save_writes_it_marked_as_failing(ros: Node, tmp_path: Path) -> None:
+    from imu_calib_ros.core.calibration import CalibrationResult
+    resp, log, status, out = run_and_save(ros, tmp_path, force=True)
+    assert resp is not None and resp.success, resp
+    assert 'FAILED its self-check' in resp.message, resp.message
+    assert status == 0, log[-2000:]
+    v = CalibrationResult.load(out).extra['provenance']['self_check']
+    assert v['passed'] is False and v['forced'] is True, v
+    assert v['summary'].startswith('FAILED, written with force: self-check failed')
+    assert 'Traceback' not in log, log
+

@@ -1,0 +1,250 @@
+"""Issue 17 item 2: a run whose own evidence says it is not trustworthy is refused.
+
+The statistics of :mod:`imu_calib_ros.core.estimator.selfcheck` on synthetic evidence, then
+``imu-calib replay`` on bags of the independent world oracle (demo_short, 185 s, 100 Hz): a
+normal run passes and records its verdict; a wrong fixture axis, a wrong accelerometer sign
+and a wrong grade hint are refused (exit 3, one line naming the evidence, no file) and
+written only with ``--force``, marked; 10 % of the samples lost in bursts give an honest
+calibration (every error within 4 sigma) or a refusal, never a silent multi-sigma error.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from imu_calib_ros.cli import main
+from imu_calib_ros.core.estimator.selfcheck import (NisTotals, RunEvidence, SelfCheckConfig,
+                                                    judge, window_statistics, worst_bound)
+from imu_calib_ros.testing.world_cases import compare_calibration, make_case
+
+
+# ------------------------------------------------------------------ the statistics
+def evidence(**kw: Any) -> RunEvidence:
+    base: dict[str, Any] = dict(
+        imu_received=10_000, imu_expected=10_000, imu_rejected=0, imu_used=9_500,
+        imu_before_first_alignment=500, restarts=0, realignments=0, reinitialisations=0,
+        gate_probability=0.99999, nis={'velocity': NisTotals(1000, 0, 3000.0)})
+    base.update(kw)
+    return RunEvidence(**base)
+
+
+def test_the_false_alarm_rate_is_shared_between_the_statistical_checks() -> None:
+    cfg = SelfCheckConfig()
+    assert (1 - cfg.alpha) ** 6 == pytest.approx(0.99)
+    v = judge(evidence())
+    assert v.passed and v.line.startswith('self-check passed'), v.line
+    assert v.alpha == pytest.approx(cfg.alpha)
+
+
+@pytest.mark.parametrize('kw, word', [
+    ({'restarts': 1}, 'restarted 1'),
+    ({'realignments': 2}, 're-aligned 2'),
+    ({'imu_rejected': 200}, '2 % of the IMU samples rejected'),
+    ({'imu_used': 4000}, 'not used by the filter'),
+    ({'nis': {'velocity': NisTotals(1000, 0, 3400.0)}}, 'velocity NIS per dof 1.13'),
+    ({'nis': {'velocity': NisTotals(1000, 3, 3000.0)}}, '3 of 1003 measurement updates gated'),
+])
+def test_each_piece_of_evidence_fails_the_run_in_one_line(kw: dict[str, Any],
+                                                         word: str) -> None:
+    v = judge(evidence(**kw))
+    assert not v.passed
+    assert v.line.startswith('self-check failed: ') and '\n' not in v.line
+    assert word in v.line, v.line
+    d = v.as_dict()
+    assert d['passed'] is False and d['summary'] == v.line
+    assert [n for n, c in d['checks'].items() if not c['passed']] == [c.name for c in v.failed]
+
+
+def test_nis_bound_is_the_chi_square_quantile_and_only_the_upper_tail_fails() -> None:
+    from scipy.stats import chi2
+    a = SelfCheckConfig().alpha
+    n = 1000
+    hi = chi2.isf(a, 3 * n)
+    assert judge(evidence(nis={'velocity': NisTotals(n, 0, hi * 0.999)})).passed
+    assert not judge(evidence(nis={'velocity': NisTotals(n, 0, hi * 1.001)})).passed
+    low = judge(evidence(nis={'velocity': NisTotals(n, 0, 0.5 * 3 * n)}))
+    assert low.passed  # pessimistic noise: conservative sigmas, reported, not refused
+    assert 'pessimistic' in next(c.text for c in low.checks if c.name == 'nis.velocity')
+
+
+def _synthetic(rng: np.random.Generator, K: int = 12, m: int = 8,
+               shift: float = 0.0) -> tuple[Any, ...]:
+    """Window residuals drawn from the model the statistics assume (noise 1, a calibration
+    covariance larger than the noise in some directions, nuisance rotations)."""
+    jac = rng.standard_normal((K, 6, m))
+    sd = np.exp(rng.uniform(-2, 1, m))
+    P = np.diag(sd ** 2)
+    sigma = np.ones((K, 6))
+    walk = np.zeros((K, K, 6))
+    nuis = rng.standard_normal((K, 6, 3))
+    x = rng.standard_normal(m) * sd
+    x[int(np.argmax(sd))] += shift * sd.max()
+    resid = np.einsum('kcm,m->kc', jac, x) + rng.standard_normal((K, 6)) \
+        + np.einsum('kcr,r->kc', nuis, rng.standard_normal(3) * 100.0)
+    return resid, jac, P, sigma, walk, nuis
+
+
+def test_window_statistics_have_their_design_false_alarm_rate_and_see_a_shifted_state(
+) -> None:
+    from scipy.stats import chi2
+    rng = np.random.default_rng(1)
+    a = 0.05  # a rate measurable with 600 draws
+    over_chi2 = over_worst = 0
+    draws = 600
+    for _ in range(draws):
+        w = window_statistics(*_synthetic(rng))
+        over_chi2 += w.chi2 > chi2.isf(a, w.dof)
+        over_worst += w.worst > worst_bound(a, w.directions)
+    # binomial(600, 0.05): 30 +- 5.3
+    assert 14 <= over_chi2 <= 46, over_chi2
+    assert 14 <= over_worst <= 46, over_worst
+    w = window_statistics(*_synthetic(np.random.default_rng(2), shift=8.0))
+    assert w.worst > worst_bound(0.002, w.directions), w
+
+
+# ------------------------------------------------------------------ replay of world bags
+@pytest.fixture(scope='module')
+def nav_case(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
+    return make_case(tmp_path_factory.mktemp('selfcheck'), unit='nav', seed=1)
+
+
+def replay(capsys: pytest.CaptureFixture[str], bag: Path, fixture: str, out: Path,
+           *extra: str) -> tuple[int, str]:
+    rc = main(['replay', str(bag), '--fixture', fixture, '--output', str(out), '--quiet',
+               *extra])
+    return rc, capsys.readouterr().err.strip()
+
+
+def max_z(out: Path, truth: Any) -> float:
+    rows = compare_calibration(yaml.safe_load(out.read_text()), truth.data)
+    return max(abs(r.z) for r in rows if r.sigma > 0 and not r.fixed)
+
+
+def refused(rc: int, err: str, out: Path, word: str) -> None:
+    assert rc == 3, (rc, err)
+    assert len(err.splitlines()) == 1 and 'self-check failed' in err and word in err, err
+    assert not out.exists()
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(f'.{out.name}')]
+
+
+def test_a_normal_run_passes_and_its_verdict_is_in_the_file(
+        nav_case: tuple[Path, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag, truth = nav_case
+    out = tmp_path / 'c.yaml'
+    rc, err = replay(capsys, bag, str(truth.fixture_path), out)
+    assert rc == 0, err
+    v = yaml.safe_load(out.read_text())['imu_calibration']['provenance']['self_check']
+    assert v['passed'] is True and v['summary'].startswith('self-check passed'), v
+    assert {'nis.velocity', 'gate', 'windows.chi2', 'restarts', 'input.lost'} <= set(
+        v['checks']), v['checks']
+    assert v['checks']['windows.chi2']['value'] > 0
+    assert max_z(out, truth) < 4.0
+
+
+def _tilted(fixture: Path, deg: float, out: Path) -> Path:
+    """The fixture file with its middle axis tilted by ``deg`` (a wrong axis)."""
+    d = yaml.safe_load(fixture.read_text())
+    a = np.array(d['joints'][1]['axis'], float)
+    c = np.cross(a, [0.0, 0.0, 1.0])
+    d['joints'][1]['axis'] = [float(x) for x in Rotation.from_rotvec(
+        math.radians(deg) * c / np.linalg.norm(c)).apply(a)]
+    p = out / f'tilted_{deg:g}.yaml'
+    p.write_text(yaml.safe_dump(d))
+    return p
+
+
+def test_a_wrong_fixture_axis_is_refused_and_forced_files_are_marked(
+        nav_case: tuple[Path, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """0.3 deg off on the middle axis: the estimate itself stays within its sigmas (the gyros
+    carry the attitude), but the stationary windows contradict the fixture by ~180 sigma."""
+    bag, truth = nav_case
+    fx = str(_tilted(Path(truth.fixture_path), 0.3, tmp_path))
+    out = tmp_path / 'c.yaml'
+    refused(*replay(capsys, bag, fx, out), out, 'stationary-window residuals')
+    rc, err = replay(capsys, bag, fx, out, '--force')
+    assert rc == 0 and 'self-check failed' in err and '--force' in err, err
+    v = yaml.safe_load(out.read_text())['imu_calibration']['provenance']['self_check']
+    assert v['passed'] is False and v['forced'] is True
+    assert v['summary'].startswith('FAILED, written with force')
+    assert not v['checks']['windows.chi2']['passed']
+
+
+@pytest.mark.parametrize('wrong, word', [('accel_x_sign', 'raw-unit sigmas'),
+                                         ('grade_hint', 'gated')])
+def test_a_wrong_sign_or_grade_is_refused(nav_case: tuple[Path, Any], tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str], wrong: str,
+                                          word: str) -> None:
+    """An accelerometer x axis of the wrong sign (the filter fits a scale factor of -2, a
+    calibration 380,000 sigma from the unit's own) and a MEMS grade hint for a navigation-grade
+    unit (its noise floors make the filter gate its updates and re-align)."""
+    from imu_calib_ros.msg_adapters.bag import read_bag, write_bag
+    bag, truth = nav_case
+    extra: tuple[str, ...] = ()
+    if wrong == 'accel_x_sign':
+        imu, joints = read_bag(bag)
+        acc = imu.accel_m_s2.copy()
+        acc[:, 0] *= -1.0
+        bag = tmp_path / 'flipped.mcap'
+        write_bag(bag, dataclasses.replace(imu, accel_m_s2=acc), joints)
+    else:
+        extra = ('--imu', 'mems_mti1')
+    out = tmp_path / 'c.yaml'
+    refused(*replay(capsys, bag, str(truth.fixture_path), out, *extra), out, word)
+
+
+def test_ten_percent_burst_drops_give_an_honest_calibration_or_a_refusal(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """10 % of the IMU samples lost in bursts (mean 5): every move has gaps, the navigation
+    re-initialises 16 times and waits for stationary windows; the filter then learns little
+    and the coarse start's accelerometer bias, 5.6 sigma off, would be written as it is."""
+    bag, truth = make_case(tmp_path, unit='nav', seed=1, drop_fraction_imu=0.1)
+    out = tmp_path / 'c.yaml'
+    rc, err = replay(capsys, bag, str(truth.fixture_path), out)
+    if rc == 0:
+        assert max_z(out, truth) <= 4.0
+    else:
+        refused(rc, err, out, 'not used by the filter')
+
+
+def test_nis_accounting_covers_every_filter_of_the_run(tmp_path: Path) -> None:
+    """Gaps during moves re-initialise the navigation: each alignment starts a new filter with
+    new gate counters. The ledger's sums cover all of them (one velocity update per chunk)."""
+    from imu_calib_ros.core.estimator import load_estimator_config
+    from imu_calib_ros.core.estimator.replay import replay_run
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.msg_adapters.bag import iter_bag
+    bag, truth = make_case(tmp_path, unit='nav', seed=2, drop_fraction_imu=0.03)
+    run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None,
+                     load_estimator_config(None))
+    est = run.estimator
+    assert est.counters['gaps_reinitialised'] >= 5
+    nis, complete = run.ledger.nis_totals()
+    v = nis['velocity']
+    assert complete and v.accepted + v.rejected == est.counters['chunks']
+    last = est.health()['gate_accepted']['velocity']
+    assert v.accepted > 2 * last  # the newest filter alone saw a fraction of the run
+    ev = run.ledger.evidence()
+    assert ev.reinitialisations == est.counters['gaps_reinitialised']
+    assert 0.2 < 1 - ev.imu_used / (ev.imu_expected - ev.imu_before_first_alignment) < 0.5
+
+
+def test_the_report_shows_the_verdict(nav_case: tuple[Path, Any], tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    bag, truth = nav_case
+    out = tmp_path / 'c.yaml'
+    fx = str(_tilted(Path(truth.fixture_path), 0.3, tmp_path))
+    assert replay(capsys, bag, fx, out, '--force')[0] == 0
+    from imu_calib_ros.core.calibration import CalibrationResult
+    from imu_calib_ros.report import build_report
+    page = build_report(CalibrationResult.load(out))
+    assert 'Self-check of the run' in page and 'FAILED, written with force' in page
+    assert '<tr class="bad"><td>windows.chi2</td>' in page
