@@ -595,6 +595,14 @@ class CalibrationEstimator:
         self._prev = None
         return True
 
+    def assumed_noise(self) -> tuple[float, float, float, float]:
+        """What the reported covariance assumed (for the self-check): white-noise densities of
+        gyros and accelerometers (x ``noise_scale``) and the adapted bias random-walk PSDs."""
+        pn = self._process_noise
+        k = pn.noise_scale
+        return (k * pn.white[0], k * pn.white[1], pn.scale * pn.bias_q[0],
+                pn.scale * pn.bias_q[1])
+
     def _start_filter(self) -> None:
         """A new filter: P0 from the prior, Q from the noise and the biases' random walk."""
         cfg = self.config

@@ -15,8 +15,8 @@ a verdict. What it keeps, in bounded memory:
   checks the sum against ``counters['chunks']`` (exactly one velocity update per chunk).
 
 Estimator internals read here (the accessors the estimator does not expose yet): the hook on
-``_start_filter``, ``_filter.counters``, the noise densities ``_noise`` and the adapted bias
-random walk ``_bias_q`` x ``_bias_q_scale`` (what the reported covariance assumed).
+``_start_filter`` and ``_filter.counters``; the assumed noise comes from the public
+``CalibrationEstimator.assumed_noise()``.
 """
 from __future__ import annotations
 
@@ -309,10 +309,7 @@ class RunLedger:
         jac[:, 0:3, lay.gyro_state_idx - 6] = Jg[:, :, lay.gyro_cols]
         jac[:, 3:6, lay.accel_state_idx - 6] = Ja[:, :, lay.accel_cols]
         # what the filter assumed: its white noise, its (adapted) bias random walk
-        k_noise = float(est.config.noise_scale)
-        n_g, n_a = (k_noise * float(v) for v in est._noise)
-        scale = float(getattr(est, '_bias_q_scale', 1.0))
-        q_g, q_a = (scale * float(v) for v in est._bias_q)
+        n_g, n_a, q_g, q_a = (float(v) for v in est.assumed_noise())
         T = n * self._dt_ns * 1e-9
         sigma = np.column_stack([np.repeat((n_g / np.sqrt(T))[:, None], 3, 1),
                                  np.repeat((n_a / np.sqrt(T))[:, None], 3, 1)])
