@@ -113,28 +113,16 @@ from imu_calib_ros.testing.world_cases import compare_calibration  # noqa: E402
 from imu_calib_ros.testing.world_sim import Mounting, WorldConfig  # noqa: E402
 from imu_calib_ros.testing.world_units import Unit, UnitNoise, draw_unit  # noqa: E402
 
-# issue 3's targets: read from bench/bench_accuracy.py (NAV_TARGETS, MEMS_TARGETS) by
-# targets_from_bench_accuracy(); these copies are used only if that file cannot be read.
+# issue 3's targets come from bench/bench_accuracy.py (one owner): targets_from_bench_accuracy()
 # group -> (limit in the group's engineering unit, 'both' = error and sigma, or 'sigma' only)
-NAV_TARGETS: dict[str, tuple[float, str]] = {
-    'gyro_scale': (1.0, 'both'), 'gyro_misalignment': (1.0, 'both'),
-    'accel_misalignment': (2.0, 'both'), 'accel_bias': (2.0, 'both'),
-    'accel_scale': (5.0, 'both'), 'gyro_asymmetry': (5.0, 'both'),
-    'accel_asymmetry': (5.0, 'both'), 'size_effect': (0.1, 'both'),
-    'gyro_bias': (0.005, 'sigma'),
-}
-MEMS_TARGETS: dict[str, tuple[float, str]] = {
-    'gyro_bias': (2.0, 'both'), 'accel_bias': (300.0, 'both'),
-    'gyro_scale': (300.0, 'both'), 'accel_scale': (300.0, 'both'),
-    'gyro_misalignment': (300.0, 'both'), 'accel_misalignment': (300.0, 'both'),
-}
+Targets = dict[str, tuple[float, str]]
 
 
 def targets_from_bench_accuracy(path: Path = REPO / 'bench' / 'bench_accuracy.py'
-                                ) -> tuple[dict[str, tuple[float, str]],
-                                           dict[str, tuple[float, str]], str]:
+                                ) -> tuple[Targets, Targets, str]:
     """NAV_TARGETS and MEMS_TARGETS as bench_accuracy.py defines them, without importing it
-    (it imports the estimator): only those two assignments are evaluated."""
+    (it imports the estimator): only those two assignments are evaluated. A file that cannot
+    be read is an error (no second copy of the targets to drift from the first)."""
     import ast
     try:
         tree = ast.parse(path.read_text())
@@ -149,7 +137,8 @@ def targets_from_bench_accuracy(path: Path = REPO / 'bench' / 'bench_accuracy.py
             ns[name] = eval(code, {'__builtins__': {}})
         return ns['NAV_TARGETS'], ns['MEMS_TARGETS'], str(path)
     except (OSError, SyntaxError, KeyError, AssertionError, NameError, TypeError) as exc:
-        return NAV_TARGETS, MEMS_TARGETS, f'built-in copies ({type(exc).__name__} reading {path})'
+        raise SystemExit(f'bench_robustness: cannot read the targets from {path}: '
+                         f'{type(exc).__name__}: {exc}') from exc
 
 
 _SRT = {'gyro_scale', 'gyro_misalignment', 'gyro_asymmetry', 'accel_bias', 'accel_scale',
@@ -362,9 +351,7 @@ def gyro_bias_floor_deg_h(truth: dict[str, Any]) -> float:
 
 
 def evaluate(case: Case, calib: dict[str, Any], truth: dict[str, Any],
-             targets_by_kind: tuple[dict[str, tuple[float, str]],
-                                    dict[str, tuple[float, str]]] = (NAV_TARGETS, MEMS_TARGETS)
-             ) -> dict[str, Any]:
+             targets_by_kind: tuple[Targets, Targets]) -> dict[str, Any]:
     """Targets, honesty figures of one successful run."""
     rows = compare_calibration(calib, truth)
     est = [r for r in rows if not r.fixed and r.sigma > 0.0]
