@@ -30,16 +30,24 @@ _LOG = logging.getLogger('imu_calib_ros.estimator')
 # deg/sqrt(h)), accelerometer 0.015 (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035).
 MEMS_BIAS_WALK = (0.035, 0.015)
 
+# Least white-noise density the filter assumes, (gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz)):
+# 1/50 of the best navigation grade (0.002 deg/sqrt(h), 5 ug/sqrt(Hz)); a quieter stream (a
+# noise-free simulation, a unit quantised below its noise) is modelled at this floor, so R, Q
+# and the self-check's window covariance stay positive definite.
+WHITE_NOISE_FLOOR = (1.2e-8, 1.0e-6)
+
 
 def white_noise_densities(start: CoarseStart | None, grade: Any,
                           noise_source: str) -> tuple[float, float]:
     """White-noise densities ``(gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz))`` for Q: measured
     (coarse start) or the grade's (``noise_source``; the data's when there is no grade)."""
     if start is not None and (noise_source == 'data' or grade is None):
-        return start.gyro_noise_rad_s_rt_hz, start.accel_noise_m_s2_rt_hz
-    if grade is not None:
-        return grade.gyro_noise_rad_s_rt_hz, grade.accel_noise_m_s2_rt_hz
-    return 1e-4, 1e-3  # nothing measured yet and no grade: MEMS-like until the start
+        n = (start.gyro_noise_rad_s_rt_hz, start.accel_noise_m_s2_rt_hz)
+    elif grade is not None:
+        n = (grade.gyro_noise_rad_s_rt_hz, grade.accel_noise_m_s2_rt_hz)
+    else:
+        n = (1e-4, 1e-3)  # nothing measured yet and no grade: MEMS-like until the start
+    return max(n[0], WHITE_NOISE_FLOOR[0]), max(n[1], WHITE_NOISE_FLOOR[1])
 
 
 def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float) -> tuple[float, float]:
