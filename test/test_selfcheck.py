@@ -74,6 +74,31 @@ def test_nis_bound_is_the_chi_square_quantile_and_only_the_upper_tail_fails() ->
     assert 'pessimistic' in next(c.text for c in low.checks if c.name == 'nis.velocity')
 
 
+def test_a_nis_above_its_bound_is_a_noise_level_the_reported_covariance_carries() -> None:
+    """Real units are never exactly their noise model: a whole-run NIS per dof above the
+    chi-square bound but at most max_nis_ratio passes when the reported covariance is
+    scaled by it (covariance_scale >= ratio); a larger ratio is a model error."""
+    cfg = SelfCheckConfig()
+    v = judge(evidence(nis={'velocity': NisTotals(1000, 0, 3 * 1000 * 1.13)},
+                       covariance_scale=1.13))
+    assert v.passed, v.line
+    assert 'covariance scaled by 1.13' in next(c.text for c in v.checks
+                                               if c.name == 'nis.velocity')
+    ratio = cfg.max_nis_ratio * 1.02
+    v = judge(evidence(nis={'velocity': NisTotals(1000, 0, 3 * 1000 * ratio)},
+                       covariance_scale=ratio))
+    assert not v.passed and f'above {cfg.max_nis_ratio:.3g}' in v.line, v.line
+
+
+def test_the_gate_count_is_judged_under_the_scaled_noise_model() -> None:
+    """Scaled innovations cross the gate more often: 3 of 15,000 gated is beyond what a
+    filter at scale 1 gates (p = 1e-5: at most 2 at alpha), not at scale 1.05."""
+    nis = {'velocity': NisTotals(14_997, 3, 3 * 14_997 * 1.05)}
+    assert 'gate' in [c.name for c in judge(evidence(nis=nis)).failed]
+    v = judge(evidence(nis=nis, covariance_scale=1.05))
+    assert v.passed, v.line
+
+
 def _synthetic(rng: np.random.Generator, K: int = 12, m: int = 8,
                shift: float = 0.0) -> tuple[Any, ...]:
     """Window residuals drawn from the model the statistics assume (noise 1, a calibration
@@ -234,6 +259,14 @@ def test_nis_accounting_covers_every_filter_of_the_run(tmp_path: Path) -> None:
     assert v.accepted > 2 * last  # the newest filter alone saw a fraction of the run
     ev = run.ledger.evidence()
     assert ev.reinitialisations == est.counters['gaps_reinitialised']
+    # the reported covariance is the filter's x the largest whole-run NIS per dof (>= 1)
+    ratio = max(t.nis_sum / (3 * t.accepted) for t in nis.values() if t.accepted >= 100)
+    assert est.covariance_scale() == pytest.approx(max(ratio, 1.0))
+    assert ev.covariance_scale == pytest.approx(est.covariance_scale())
+    sd_filter = np.sqrt(np.diag(est.estimate_state().covariance))
+    sd_file = est.estimate().sigma.gyro_bias_rad_s
+    i = [k for k, lab in enumerate(est.estimate_state().labels) if lab.startswith('gyro_bias')]
+    assert sd_file == pytest.approx(sd_filter[i] * np.sqrt(est.covariance_scale()), rel=1e-9)
     assert 0.2 < 1 - ev.imu_used / (ev.imu_expected - ev.imu_before_first_alignment) < 0.5
 
 

@@ -32,7 +32,9 @@ file) have their own modules; the names they used to have here are re-exported.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -69,6 +71,8 @@ __all__ = ['CalibrationEstimator', 'Estimate', 'prior_sigmas', 'CONTRACT_KEYS', 
 
 FloatArray = NDArray[np.float64]
 _LOG = logging.getLogger('imu_calib_ros.estimator')
+MEASUREMENT_DOF = 3  # every measurement update is 3-D (velocity, attitude)
+MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS to count
 
 
 class CalibrationEstimator:
@@ -152,6 +156,10 @@ class CalibrationEstimator:
         self._last_good_cache: tuple[int, Any] | None = None
         self._nis = NisWindow(gcfg.nis_window)
         self._kept_cal_P: FloatArray | None = None  # calibration block of P while re-aligning
+        # the gate counters of every filter of the run (a new filter at every (re-)alignment,
+        # restart and re-initialisation), for the whole-run NIS (self-check, covariance scale)
+        self._run_counters: list[Any] = []
+        self.first_filter_dropped: int | None = None  # imu_dropped_before_alignment then
 
     def reset_navigation(self) -> None:
         """Restart the navigation after a backward time jump (a looping bag, ``use_sim_time``).
@@ -268,6 +276,9 @@ class CalibrationEstimator:
         frame, else the ``header.frame_id`` of the data, else ``imu_link``.
         """
         st = self.estimate_state()
+        scale = self.covariance_scale()
+        if scale > 1.0:  # the reported covariance (covariance_scale): never the filter's own
+            st = dataclasses.replace(st, covariance=st.covariance * scale)
         return calibration_result(
             st, self.layout, self._prior, frame_id or self._frame(),
             lambda sd: {'estimator': estimator_extra(st, sd, self.layout, self.health(),
@@ -603,6 +614,34 @@ class CalibrationEstimator:
         return (k * pn.white[0], k * pn.white[1], pn.scale * pn.bias_q[0],
                 pn.scale * pn.bias_q[1])
 
+    def nis_totals(self) -> dict[str, tuple[int, int, float]]:
+        """Whole-run gate counts per measurement kind over every filter of the run:
+        ``{kind: (accepted, rejected, sum of the accepted updates' NIS)}``."""
+        out: dict[str, list[Any]] = {}
+        for c in self._run_counters:
+            for k in set(c.accepted) | set(c.rejected):
+                t = out.setdefault(k, [0, 0, 0.0])
+                t[0] += int(c.accepted.get(k, 0))
+                t[1] += int(c.rejected.get(k, 0))
+                t[2] += float(c.nis_sum.get(k, 0.0))
+        return {k: (int(v[0]), int(v[1]), float(v[2])) for k, v in sorted(out.items())}
+
+    def covariance_scale(self) -> float:
+        """Factor on the reported covariance: the largest whole-run NIS per degree of freedom
+        of the measurement kinds, at least 1 (the Birge ratio).
+
+        When the innovations are larger than the filter predicts, its noise model is too
+        optimistic somewhere; if every noise were off by the same factor ``c`` the gains would
+        be unchanged and the true covariance ``c P``, with NIS ``c`` per dof. So the reported
+        sigmas are scaled by ``sqrt(c)`` rather than trusted, and the self-check refuses only
+        a ratio too large for this to be a noise level (``SelfCheckConfig.max_nis_ratio``).
+        Kinds with fewer than :data:`MIN_NIS_UPDATES` accepted updates are not used."""
+        c = 1.0
+        for acc, _, total in self.nis_totals().values():
+            if acc >= MIN_NIS_UPDATES:
+                c = max(c, total / (MEASUREMENT_DOF * acc))
+        return c if math.isfinite(c) else 1.0
+
     def _start_filter(self) -> None:
         """A new filter: P0 from the prior, Q from the noise and the biases' random walk."""
         cfg = self.config
@@ -611,6 +650,9 @@ class CalibrationEstimator:
                                         cfg.gate_probability)
         self._process_noise.start(self.layout, bias_random_walk(
             self.grade, self.start, cfg.aiding_gyro_noise_rad_s_rt_hz))
+        if not self._run_counters:
+            self.first_filter_dropped = int(self.counters.get('imu_dropped_before_alignment', 0))
+        self._run_counters.append(self._filter.counters)
 
     def _restore_calibration_covariance(self) -> None:
         """After a re-initialisation: the calibration block of P is the one before the gap."""

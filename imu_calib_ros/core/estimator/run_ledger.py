@@ -9,14 +9,10 @@ a verdict. What it keeps, in bounded memory:
 - the joint record thinned to one sample per 20 ms (fixture order, unwrapped), from which the
   stationary windows are found at the end (:func:`.coarse.static_windows`, the coarse start's
   rule);
-- every :class:`~.ekf.GateCounters` of the run: the estimator starts a new filter at every
-  (re-)alignment, restart and navigation re-initialisation, so its own counters cover only
-  the newest filter. The ledger wraps the estimator's ``_start_filter`` to see each one, and
-  checks the sum against ``counters['chunks']`` (exactly one velocity update per chunk).
-
-Estimator internals read here (the accessors the estimator does not expose yet): the hook on
-``_start_filter`` and ``_filter.counters``; the assumed noise comes from the public
-``CalibrationEstimator.assumed_noise()``.
+The gate counts of every filter of the run come from the estimator
+(``CalibrationEstimator.nis_totals()``; checked against ``counters['chunks']``: exactly one
+velocity update per chunk), the assumed noise from ``assumed_noise()`` and the reported
+covariance's factor from ``covariance_scale()``: the ledger reads no estimator internals.
 """
 from __future__ import annotations
 
@@ -56,39 +52,10 @@ class RunLedger:
 
     def __init__(self, estimator: Any) -> None:
         self.est = estimator
-        self._counters: list[Any] = []
-        self._first_drop: int | None = None
-        self._hook()
         self.reset()
-
-    # ------------------------------------------------------------------ estimator side
-    def _hook(self) -> None:
-        est = self.est
-        start = getattr(est, '_start_filter', None)
-        if start is None or getattr(start, '_ledger_hook', False):
-            return
-
-        def start_filter() -> None:
-            start()
-            self._see_filter()
-
-        start_filter._ledger_hook = True  # type: ignore[attr-defined]
-        est._start_filter = start_filter
-
-    def _see_filter(self) -> None:
-        filt = getattr(self.est, '_filter', None)
-        c = getattr(filt, 'counters', None)
-        if c is None or any(c is k for k in self._counters):
-            return
-        if not self._counters:
-            self._first_drop = int(self.est.counters.get('imu_dropped_before_alignment', 0))
-        self._counters.append(c)
 
     def reset(self) -> None:
         """Forget the run (with the estimator's ``reset()``)."""
-        self._counters = []
-        self._first_drop = None
-        self._see_filter()
         self._segments: list[int] = []  # expected samples of finished recordings
         self._t_first: int | None = None
         self._t_last: int | None = None
@@ -179,20 +146,9 @@ class RunLedger:
 
     # ------------------------------------------------------------------ evidence
     def nis_totals(self) -> tuple[dict[str, NisTotals], bool]:
-        """Whole-run gate counts per measurement kind, and whether every filter was seen."""
-        self._see_filter()
-        acc: dict[str, int] = {}
-        rej: dict[str, int] = {}
-        tot: dict[str, float] = {}
-        for c in self._counters:
-            for k, v in c.accepted.items():
-                acc[k] = acc.get(k, 0) + int(v)
-            for k, v in c.rejected.items():
-                rej[k] = rej.get(k, 0) + int(v)
-            for k, v in c.nis_sum.items():
-                tot[k] = tot.get(k, 0.0) + float(v)
-        kinds = sorted(set(acc) | set(rej))
-        out = {k: NisTotals(acc.get(k, 0), rej.get(k, 0), tot.get(k, 0.0)) for k in kinds}
+        """Whole-run gate counts per measurement kind (the estimator's, over every filter of
+        the run), and whether they cover every chunk (one velocity update per chunk)."""
+        out = {k: NisTotals(a, r, t) for k, (a, r, t) in self.est.nis_totals().items()}
         v = out.get('velocity')
         n_v = 0 if v is None else v.accepted + v.rejected
         return out, n_v == int(self.est.counters.get('chunks', 0))
@@ -216,13 +172,13 @@ class RunLedger:
         return RunEvidence(
             imu_received=received, imu_expected=max(self.expected_samples(), received),
             imu_rejected=rejected, imu_used=int(c.get('imu_processed', 0)),
-            imu_before_first_alignment=int(self._first_drop or 0),
+            imu_before_first_alignment=int(self.est.first_filter_dropped or 0),
             restarts=int(c.get('restarts', 0)), realignments=int(c.get('realignments', 0)),
             reinitialisations=int(c.get('gaps_reinitialised', 0))
             + int(c.get('navigation_resets', 0)),
             gate_probability=float(est.config.gate_probability), nis=nis,
             windows=self.window_statistics(), nis_complete=complete, raw_ratio=raw,
-            raw_label=label, raw_states=n_raw)
+            raw_label=label, raw_states=n_raw, covariance_scale=est.covariance_scale())
 
     def raw_ratio(self) -> tuple[float, str, int]:
         """Largest ``|estimate| / RAW_PRIOR`` over the scale and misalignment states (the
@@ -283,7 +239,7 @@ class RunLedger:
         than two windows or the filter never ran)."""
         est = self.est
         wins = self.windows()
-        if len(wins) < 2 or not self._counters or self._dt_ns <= 0 or self._t_last is None:
+        if len(wins) < 2 or not self.est.nis_totals() or self._dt_ns <= 0 or self._t_last is None:
             return None
         st = est.estimate_state()
         lay = est.layout
@@ -325,5 +281,7 @@ class RunLedger:
         nuis[:, 3:6, 3:6] = np.swapaxes(R, 1, 2) @ skew(g_enu)
         if not (np.all(np.isfinite(resid)) and np.all(np.isfinite(st.covariance))):
             return WindowStatistics(K, math.inf, 6 * K - 6, math.inf, 'non-finite', 1)
-        return window_statistics(resid, jac, st.covariance, sigma, walk, nuis,
+        # the covariance the calibration file reports (x covariance_scale)
+        return window_statistics(resid, jac, st.covariance * est.covariance_scale(), sigma,
+                                 walk, nuis,
                                  tuple(st.labels))
