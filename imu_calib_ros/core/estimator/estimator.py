@@ -130,7 +130,7 @@ class CalibrationEstimator:
             'attitude_updates_without_joints': 0,
             'imu_dropped_at_gap': 0, 'gaps_bridged': 0, 'gaps_reinitialised': 0,
             'divergences': 0, 'restarts': self.restarts, 'realignments': 0,
-            'bias_noise_adaptations': 0}
+            'bias_noise_adaptations': 0, 'bias_walk_raised': 0}
         self._configure()
         self._process_noise = ProcessNoise(cfg.noise_scale)
         self._reset_filter_side()
@@ -625,6 +625,19 @@ class CalibrationEstimator:
                 t[1] += int(c.rejected.get(k, 0))
                 t[2] += float(c.nis_sum.get(k, 0.0))
         return {k: (int(v[0]), int(v[1]), float(v[2])) for k, v in sorted(out.items())}
+
+    def raise_bias_walk(self, q_gyro: float, q_accel: float) -> bool:
+        """The biases' random walk the run's data show (PSDs, (rad/s)^2/s and (m/s^2)^2/s;
+        :meth:`~.run_ledger.RunLedger.bias_walk`): used from now on where it exceeds the
+        assumed one by 1.5x (item 5: no grade declares it). Returns whether Q changed."""
+        changed = self._process_noise.raise_walk((q_gyro, q_accel))
+        if changed:
+            self.counters['bias_walk_raised'] += 1
+            _LOG.info('bias random walk raised to the stationary windows\' drift: gyro %.3g '
+                      'deg/h/sqrt(h), accel %.3g ug/sqrt(s)',
+                      math.degrees(math.sqrt(q_gyro)) * 3600 * 60,
+                      math.sqrt(q_accel) / 9.80665e-6)
+        return changed
 
     def covariance_scale(self) -> float:
         """Factor on the reported covariance: the largest whole-run NIS per degree of freedom

@@ -24,10 +24,14 @@ from .error_model import StateLayout
 FloatArray = NDArray[np.float64]
 _LOG = logging.getLogger('imu_calib_ros.estimator')
 
-# Least bias random walk of a MEMS unit without a grade, per sqrt(s), as a fraction of its
-# white-noise density: gyro 0.035 (a Gauss-Markov instability of N/4 rad/s over 100 s, e.g.
-# 0.42 deg/sqrt(h) -> 6 deg/h; MTi-1 datasheet 10 deg/h, industrial units 1-3 deg/h at 0.1-0.3
-# deg/sqrt(h)), accelerometer 0.015 (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035).
+# Least bias random walk of a unit without a grade, per sqrt(s), as a fraction of its
+# white-noise density: gyro 0.035, MEMS only (a Gauss-Markov instability of N/4 rad/s over
+# 100 s, e.g. 0.42 deg/sqrt(h) -> 6 deg/h; MTi-1 datasheet 10 deg/h, industrial units 1-3
+# deg/h at 0.1-0.3 deg/sqrt(h); a navigation gyro's is ~1e-4 and this floor would cost its
+# bias accuracy), accelerometer 0.015, every class (MTi-1: 30 ug over 100 s at 120
+# ug/sqrt(Hz) is 0.035; a navigation unit's 2-5 ug over an hour at 5-20 ug/sqrt(Hz) is
+# 0.002-0.024: a drift the stationary windows cannot resolve, but that left a 0.6 ug sigma
+# 5 sigma off on a 30-min world run).
 MEMS_BIAS_WALK = (0.035, 0.015)
 
 # Least white-noise density the filter assumes, (gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz)):
@@ -85,10 +89,12 @@ def bias_random_walk(grade: Any, start: CoarseStart | None,
     if st is not None:  # item 5: the random walk the data show, if larger
         qg = max(qg, st.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
         qa = max(qa, st.accel_bias_random_walk_m_s3_rt_hz ** 2)
-        if gr is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
-            # a MEMS unit and no grade: never assume its biases constant
-            qg = max(qg, (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2)
+        if gr is None:
+            # no grade: never assume the accelerometer biases constant (any class)
             qa = max(qa, (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2)
+        if gr is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
+            # a MEMS unit and no grade: nor its gyro biases
+            qg = max(qg, (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2)
     return qg, qa
 
 
@@ -105,6 +111,7 @@ class ProcessNoise:
         self.white = (0.0, 0.0)
         self.bias_q = (0.0, 0.0)
         self.seed = (0.0, 0.0)  # the walk the adaptation seeded, when none was known
+        self.floor = (0.0, 0.0)  # the walk the run's stationary windows showed (raise_walk)
         self.scale = 1.0  # the adaptation's factor on the walk
         self.q1_s: FloatArray | None = None  # diagonal Q per second, scaled units
         self._layout: StateLayout | None = None
@@ -112,8 +119,29 @@ class ProcessNoise:
     def start(self, layout: StateLayout, bias_q: tuple[float, float]) -> None:
         """Q for a new filter: the bias walk ``bias_q``, at least the adaptation's seed."""
         self._layout = layout
-        self.bias_q = (max(bias_q[0], self.seed[0]), max(bias_q[1], self.seed[1]))
+        self.bias_q = (max(bias_q[0], self.seed[0], self.floor[0]),
+                       max(bias_q[1], self.seed[1], self.floor[1]))
         self._update()
+
+    def raise_walk(self, q: tuple[float, float], factor: float = 1.5) -> bool:
+        """Item 5 in the run: the stationary windows at one pose drift apart by more than the
+        assumed walk allows. Each of ``q`` (gyro, accel PSD) that exceeds the walk in use
+        (``scale x bias_q``) by ``factor`` becomes the walk (kept across re-alignments, like
+        the adaptation). Returns whether Q changed."""
+        changed = False
+        bq = list(self.bias_q)
+        fl = list(self.floor)
+        for i in range(2):
+            if q[i] > factor * self.scale * bq[i]:
+                bq[i] = q[i] / self.scale
+                fl[i] = max(fl[i], bq[i])
+                changed = True
+        if changed:
+            self.bias_q = (bq[0], bq[1])
+            self.floor = (fl[0], fl[1])
+            if self._layout is not None:
+                self._update()
+        return changed
 
     def _update(self) -> None:
         """Q per second (scaled) from the white noise and the bias walk x its adaptation."""

@@ -39,6 +39,8 @@ JOINT_KEEP_NS = 20_000_000  # joint record thinned to one sample per 20 ms
 MIN_WINDOW_S = 1.0  # stationary windows of at least this (after the coarse start's trim)
 MAX_WINDOWS = 300  # the longest windows if there are more (a 1800 x 1800 covariance)
 JUMP_BACK_NS = 1_000_000_000  # a stamp this much older than the newest: a new recording
+SAME_POSE_RAD = 1e-3  # bias_walk: two windows at one pose (every joint within this)
+WALK_CHECK_NS = 60_000_000_000  # bias_walk handed to the estimator every 60 s of data
 PLAUSIBLE_GROUPS = ('gyro_scale', 'gyro_misalignment', 'accel_scale', 'accel_misalignment')
 
 
@@ -57,6 +59,7 @@ class RunLedger:
     def reset(self) -> None:
         """Forget the run (with the estimator's ``reset()``)."""
         self._segments: list[int] = []  # expected samples of finished recordings
+        self._walk_checked: int | None = None
         self._t_first: int | None = None
         self._t_last: int | None = None
         self._dt_ns: float = 0.0
@@ -110,6 +113,7 @@ class RunLedger:
         vals = np.column_stack([np.ones(len(k)), w, f])
         for c in range(7):
             self._bins[:top, c] += np.bincount(k, vals[:, c], minlength=top)
+        self._check_walk()
 
     def joints(self, batch: JointBatch | JointSample) -> None:
         """Joint states as pushed to the estimator (a batch or one sample)."""
@@ -233,6 +237,55 @@ class RunLedger:
             keep = sorted(sorted(range(len(out)), key=lambda i: -out[i][5])[:MAX_WINDOWS])
             out = [out[i] for i in keep]
         return out
+
+    def bias_walk(self) -> tuple[float, float, int]:
+        """The biases' random walk the stationary windows show (item 5, during the run):
+        ``(q_gyro, q_accel, pairs)``, PSDs per second, 0 where it does not stand out.
+
+        Only pairs of windows at the same pose (every joint within :data:`SAME_POSE_RAD`):
+        there the compensation is the same function of the same input, so whatever the
+        calibration's error, the difference of the two raw means is white noise plus the
+        bias change between them. ``E[d^2] - s_i^2 - s_j^2 = a + q |t_j - t_i|`` over the
+        pairs (``a`` absorbs a misjudged white noise), by least squares; a slope counts when
+        it stands out (t > 3, its standard error that of the windows, not of the pairs that
+        share them). Plans that never return to a pose give 0."""
+        wins = self.windows()
+        if len(wins) < 4 or self._dt_ns <= 0:
+            return 0.0, 0.0, 0
+        q = np.array([x[2] for x in wins])
+        dq = np.abs((q[:, None, :] - q[None, :, :] + np.pi) % (2 * np.pi) - np.pi).max(axis=2)
+        i, j = np.nonzero(np.triu(dq < SAME_POSE_RAD, 1))
+        used = len(set(i.tolist()) | set(j.tolist()))
+        if len(i) < 6 or used < 4:
+            return 0.0, 0.0, int(len(i))
+        n_g, n_a, _, _ = (float(v) for v in self.est.assumed_noise())
+        T = np.array([x[5] for x in wins], float) * self._dt_ns * 1e-9
+        tm = np.array([0.5 * (x[0] + x[1]) * 1e-9 for x in wins])
+        X = np.column_stack([np.ones(len(i)), np.abs(tm[j] - tm[i])])
+        out = []
+        for k, white in ((3, n_g), (4, n_a)):
+            m = np.array([x[k] for x in wins])
+            s2 = white ** 2 / T
+            y = np.mean((m[j] - m[i]) ** 2, axis=1) - s2[i] - s2[j]
+            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+            r = y - X @ beta
+            cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / used
+            slope, se = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
+            out.append(slope if slope > 0 and slope > 3 * se else 0.0)
+        return out[0], out[1], int(len(i))
+
+    def _check_walk(self) -> None:
+        """Every :data:`WALK_CHECK_NS` of data while the filter runs: hand the walk the
+        windows show to the estimator (``raise_bias_walk``), live and offline alike."""
+        t = self._t_last
+        if t is None or not getattr(self.est, 'is_running', False):
+            return
+        if self._walk_checked is not None and t - self._walk_checked < WALK_CHECK_NS:
+            return
+        self._walk_checked = t
+        q_g, q_a, _ = self.bias_walk()
+        if q_g > 0 or q_a > 0:
+            self.est.raise_bias_walk(q_g, q_a)
 
     def window_statistics(self) -> WindowStatistics | None:
         """Residuals of the stationary windows against the current estimate (None if fewer
