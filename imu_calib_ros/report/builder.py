@@ -135,7 +135,8 @@ def srt_plot(extra: dict[str, Any]) -> str | None:
             if k % 2:
                 a.axvspan(lo, hi, color='0.92', zorder=0)
     ax[1].set_xticks(centres, names, rotation=90 if len(seqs) > 16 else 0, fontsize=8)
-    ax[1].set_xlabel('SRT sequence (Savage Table 1 id; seq:N = several sequences the dwells did not separate)')
+    ax[1].set_xlabel('SRT sequence (Savage Table 1 id; seq:N = several sequences the dwells '
+                     'did not separate)')
     ax[1].set_xlim(-0.5, x0 - 0.5)
     return _png(fig)
 
@@ -399,7 +400,8 @@ def header_html(calib: Any, calib_path: str | None, fixture: Any, bag: Any,
                                              if isinstance(v, (int, float)))))
     if est.get('estimated_groups'):
         rows.append(('estimator', f'states: {", ".join(est["estimated_groups"])}; encoder '
-                                  f'attitude aiding {"on" if est.get("attitude_aiding") else "off"}'
+                                  'attitude aiding '
+                                  f'{"on" if est.get("attitude_aiding") else "off"}'
                                   f'; time offset {1e3 * est.get("time_offset_s", 0.0):.3g} ms'))
     h = ex.get('history')
     if isinstance(h, dict) and h.get('t_s'):
@@ -422,6 +424,23 @@ def within_3_sigma(calib: Any, truth: Any) -> tuple[int, int]:
             n += 1
             n_in += int(abs(b.value[idx] - tb[b.key].value[idx]) <= 3 * b.sigma[idx])
     return n_in, n
+
+
+def selfcheck_table(extra: dict[str, Any]) -> str | None:
+    """Every check of the run's self-check (``provenance.self_check``, issue 17) with its
+    figure and limit, failed rows highlighted, or None."""
+    v = (extra.get('provenance', {}) or {}).get('self_check')
+    if not isinstance(v, dict):
+        return None
+    rows = ['<tr><th>check</th><th>value</th><th>limit</th><th>reading</th></tr>']
+    for name, c in (v.get('checks') or {}).items():
+        cls = '' if c.get('passed') else ' class="bad"'
+        val, lim = (f'{x:.4g}' if isinstance(x, (int, float)) else '-'
+                    for x in (c.get('value'), c.get('limit')))
+        reading = 'passed' if c.get('passed') else str(c.get('text', ''))
+        rows.append(f'<tr{cls}><td>{_esc(name)}</td><td>{val}</td><td>{lim}</td>'
+                    f'<td style="text-align:left">{_esc(reading)}</td></tr>')
+    return '<table>' + ''.join(rows) + '</table>'
 
 
 CHECK_NAMES = {
@@ -452,7 +471,8 @@ def verdict_html(calib: Any, truth: Any | None) -> str:
             c = checks.get(name)
             if c:
                 items.append(f'{name.split(".")[1]} NIS per dof {c["value"]:.3g} '
-                             f'(bound {c["limit"]:.3g}): {"consistent" if c["passed"] else "TOO LARGE"}')
+                             f'(bound {c["limit"]:.3g}): '
+                             f'{"consistent" if c["passed"] else "TOO LARGE"}')
         for name, what in (('restarts', 'divergence restarts'),
                            ('realignments', 're-alignments')):
             c = checks.get(name)
@@ -640,12 +660,15 @@ def build_report(calib: Any, truth: Any | None = None,
     parts = [f'<h1>{_esc(title)}</h1>',
              header_html(calib, calib_path, fixture, bag if bag and bag.path else None,
                          generated),
-             '<h2>Verdict</h2>', verdict_html(calib, truth),
-             '<h2>Parameters</h2>',
-             '<p class="note">value &plusmn; one sigma in engineering units per entry; '
-             '|v|/&sigma;: significance of the value; italic grey: not estimated (held at '
-             'its assumed value with its assumed sigma).</p>',
-             blocks_html(calib, truth)]
+             '<h2>Verdict</h2>', verdict_html(calib, truth)]
+    checks = selfcheck_table(ex)
+    if checks:
+        parts += ['<h3>Self-check of the run</h3>', checks]
+    parts += ['<h2>Parameters</h2>',
+              '<p class="note">value &plusmn; one sigma in engineering units per entry; '
+              '|v|/&sigma;: significance of the value; italic grey: not estimated (held at '
+              'its assumed value with its assumed sigma).</p>',
+              blocks_html(calib, truth)]
     truth_values = None
     if truth is not None and isinstance(ex.get('history'), dict):
         truth_values = _truth_by_label(truth, ex['history'].get('names') or [])
