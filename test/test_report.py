@@ -36,7 +36,9 @@ def test_report_has_plots_and_table(srt_result, tmp_path):
     for b in imgs:
         assert base64.b64decode(b)[:8] == b'\x89PNG\r\n\x1a\n'
     assert 'err/&sigma;' in page and 'gyro Kg[y,y]' in page
-    assert 'convergence plot skipped' in page  # SRT has no history
+    # SRT has no history: said once, no empty sections
+    assert page.count('Not in this report') == 1 and 'no estimate history' in page
+    assert 'skipped' not in page and 'no SRT sequences' not in page
     assert 'http://' not in page and 'https://' not in page  # self-contained
 
 
@@ -48,8 +50,10 @@ def test_table_marks_fixed_and_highlights_only_estimated(srt_result):
     calib, truth = srt_result
     page = build_report(calib, truth)
     for tag in ('gyro G[x,y]', 'accel quad[z]', 'size effect[x,y]'):
-        row = next(r for r in page.split('<tr>') if r.startswith(f'<td>{tag}</td>'))
-        assert '>fixed</td>' in row and 'class="bad"' not in row, row
+        # held at zero by the method: folded into one line, no rows of zeros
+        assert not [r for r in page.split('<tr>') if r.startswith(f'<td>{tag}</td>')]
+    folded = page.split('not estimated, held at zero: ')[1].split('<')[0]
+    assert 'gyro G (' in folded and 'size effect (' in folded, folded
     not_est = calib.extra['srt']['not_estimated']
     assert 'ba_x' in not_est  # 3 sequences do not excite it ...
     row = next(r for r in page.split('<tr>') if r.startswith('<td>accel bias[x]</td>'))

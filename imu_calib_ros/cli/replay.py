@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import InputError, SelfCheckError
-from ..core.units import ENGINEERING
 from ..msg_adapters import DEFAULT_REORDER_WINDOW_S
 from . import add_topic_arguments, check_output_file
 
@@ -29,7 +28,6 @@ if TYPE_CHECKING:
     from ..core.reorder import ReorderStats
 
 METHODS = ('ekf', 'srt', 'oscillation')
-UNITS = tuple((key, 1.0 / si, unit) for key, (_, si, unit) in ENGINEERING.items())
 
 
 def register(subparsers: Any) -> None:
@@ -66,19 +64,10 @@ def register(subparsers: Any) -> None:
 
 
 def _summary(calib: Any) -> str:
-    import numpy as np
-    d = calib.to_dict()['imu_calibration']
-    lines = [f'{"parameter":34s} {"value":>30s}   {"sigma":>30s}  unit']
-    for key, k, unit in UNITS:
-        sect, name = key.split('.')
-        v = np.asarray(d[sect][name], float) * k
-        s = np.asarray(d['sigma'][sect][name], float) * k
-        fx = ' (fixed)' if key in d.get('fixed', []) else ''
-        fmt = np.array2string(v.ravel(), precision=3, suppress_small=True, max_line_width=200)
-        sfmt = np.array2string(s.ravel(), precision=3, suppress_small=True,
-                               max_line_width=200)
-        lines.append(f'{key + fx:34s} {fmt:>30s} +- {sfmt:>30s}  {unit}')
-    return '\n'.join(lines)
+    """The terminal summary: labelled 3x3 blocks with units per element (issue 12; the same
+    layout code as the report, :mod:`imu_calib_ros.core.param_table`)."""
+    from ..core.param_table import format_text
+    return format_text(calib)
 
 
 def _srt_note(info: dict[str, Any]) -> None:

@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help='other calibration files to show next to CALIB.yaml')
     p.add_argument('--output', '-o', default='report.html', metavar='REPORT.html',
                    help='HTML file to write (default report.html in the current directory)')
+    p.add_argument('--pdf', default=None, metavar='REPORT.pdf',
+                   help='also write the header, verdict, parameters and plots as a PDF '
+                        '(matplotlib PdfPages)')
     add_topic_arguments(p)
     p.set_defaults(func=run)
 
@@ -50,7 +53,7 @@ def levelled_attitude(R_enu_imu_nominal: Any, f_imu_m_s2: Any) -> Any:
     return rotvec_to_matrix(rv) @ R_enu_imu_nominal
 
 
-def _nav_velocity(args: argparse.Namespace, calib):  # noqa: ANN001, ANN202
+def _nav_velocity(args: argparse.Namespace, calib, data=None):  # noqa: ANN001, ANN202
     """Navigated velocity error over the bag with the calibration applied.
 
     Starts at rest at the first stationary window, with the EKF's mounting rotation if the
@@ -72,7 +75,8 @@ def _nav_velocity(args: argparse.Namespace, calib):  # noqa: ANN001, ANN202
     if args.fixture is None:
         raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')
     fx = load_fixture(args.fixture)
-    imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
+    imu, joints = data if data is not None else read_bag(args.bag, args.imu_topic,
+                                                         args.joint_topic)
     w, f = compensate(calib.errors, imu.gyro_rad_s, imu.accel_m_s2, stamps_ns=imu.stamps_ns)
     wins = stationary_windows(imu, joints, fx, min_duration_s=2.0)
     if not wins:
@@ -101,20 +105,62 @@ def _nav_velocity(args: argparse.Namespace, calib):  # noqa: ANN001, ANN202
     return t[::step], (nav.v_enu_m_s - v_point)[::step]
 
 
+def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN202
+    """The bag as the report shows it: hash, joint timeline, stationary windows, Allan
+    deviation, navigated velocity without calibration, with this one and with the others."""
+    import numpy as np
+
+    from ..core.calibration import CalibrationResult
+    from ..core.errors import InputError
+    from ..core.fixture import load_fixture
+    from ..core.methods.windows import joint_positions, stationary_windows
+    from ..core.sensor_model import SensorErrors
+    from ..msg_adapters.bag import read_bag
+    from ..report.bag_facts import BagFacts, content_hash, pooled_allan
+    if args.fixture is None:
+        raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')
+    fx = load_fixture(args.fixture)
+    imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
+    t0 = int(imu.stamps_ns[0])
+    t_imu = (imu.stamps_ns - t0) * 1e-9
+    dt = float(np.median(np.diff(t_imu)))
+    wins = stationary_windows(imu, joints, fx, min_duration_s=2.0)
+    q = np.degrees(joint_positions(joints, fx.joint_names))
+    tj = (joints.stamps_ns - t0) * 1e-9
+    step = max(1, len(tj) // 4000)
+    allan = pooled_allan(imu.gyro_rad_s, imu.accel_m_s2, dt, [(w.i0, w.i1) for w in wins])
+    nav = {}
+    zero = CalibrationResult.exact(SensorErrors.zeros(), calib.frame_id)
+    for name, c in (('no calibration', zero), ('this calibration', calib), *compare):
+        nav[name] = _nav_velocity(args, c, (imu, joints))
+    return fx, BagFacts(str(args.bag), content_hash(args.bag), float(t_imu[-1]), len(imu),
+                        1.0 / dt, fx.joint_names, tj[::step], q[::step],
+                        [(w.t0_s, w.t1_s) for w in wins], allan, nav)
+
+
 def run(args: argparse.Namespace) -> int:
-    """Build and write the page atomically."""
+    """Build and write the page atomically (and the PDF with ``--pdf``)."""
     from ..core.calibration import CalibrationResult
     from ..core.errors import InputError
     from ..report import build_report
     from . import check_output_file
     out = Path(args.output)
     check_output_file(out, 'report.html')
+    if args.pdf:
+        check_output_file(Path(args.pdf), 'report.pdf')
     calib = CalibrationResult.load(args.calib)
     truth = CalibrationResult.load(args.truth) if args.truth else None
     compare = [(Path(p).stem, CalibrationResult.load(p)) for p in args.compare]
-    nav = _nav_velocity(args, calib) if args.bag else None
-    page = build_report(calib, truth, compare, title=f'IMU calibration: {args.calib}',
-                        nav_velocity=nav)
+    fixture = bag = None
+    if args.bag:
+        fixture, bag = _bag_facts(args, calib, compare)
+    elif args.fixture:
+        from ..core.fixture import load_fixture
+        fixture = load_fixture(args.fixture)
+    figures: list[Any] = []
+    page = build_report(calib, truth, compare, title=f'IMU calibration of {calib.frame_id}: '
+                        f'{Path(args.calib).name}', calib_path=str(args.calib),
+                        fixture=fixture, bag=bag, figures=figures)
     tmp = out.with_name(f'.{out.name}.tmp')
     try:
         tmp.write_text(page, encoding='utf-8')
@@ -123,6 +169,10 @@ def run(args: argparse.Namespace) -> int:
         tmp.unlink(missing_ok=True)
         raise InputError(f'--output {out}: cannot write ({exc.strerror})') from None
     print(f'wrote {out}')
+    if args.pdf:
+        from ..report.pdf import write_pdf
+        write_pdf(Path(args.pdf), page)
+        print(f'wrote {args.pdf}')
     return 0
 
 

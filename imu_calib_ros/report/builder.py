@@ -17,38 +17,16 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
+from ..core.param_table import is_fixed, srt_not_estimated  # noqa: E402,F401
 from ..core.sensor_model import KEY_OF_FIELD  # noqa: E402
-from ..core.units import ENGINEERING, UG_M_S2  # noqa: E402
+from ..core.units import ENGINEERING, UG_M_S2, element_unit  # noqa: E402
 
-#: (SensorErrors field, label, factor to engineering units, unit, CONTRACT 4 key)
-ROWS = tuple((field, ENGINEERING[key][0], 1.0 / ENGINEERING[key][1],
-              ENGINEERING[key][2].replace('|', '/'), key) for field, key in KEY_OF_FIELD.items())
-
-
-def _srt_not_estimated(res: Any) -> set[tuple[str, tuple[int, ...]]] | None:
-    """Entry-level (field, index) pairs an SRT result held fixed, or None if not an SRT file.
-
-    CONTRACT 4's ``fixed`` lists whole keys: one unexcited entry (e.g. ``ba_x``) puts all of
-    ``accelerometer.bias`` there, while the SRT's ``extra.srt.not_estimated`` names entries.
-    """
-    names = (getattr(res, 'extra', None) or {}).get('srt', {}).get('not_estimated')
-    if names is None:
-        return None
-    from ..core.methods.srt import CONSIDER, PARAMS
-    out = {(fld, tuple(idx)) for n, fld, idx in PARAMS if n in names}
-    out |= {(fld, tuple(idx)) for _, fld, idx, _ in CONSIDER}
-    for n, fld, idx in PARAMS:  # Kg is symmetric: both halves
-        if n in names and fld == 'gyro_scale_misalignment':
-            out.add((fld, tuple(idx[::-1])))
-    return out
+#: (SensorErrors field, label, factor to engineering units, CONTRACT 4 key)
+ROWS = tuple((field, ENGINEERING[key][0], 1.0 / ENGINEERING[key][1], key)
+             for field, key in KEY_OF_FIELD.items())
 
 
-def is_fixed(res: Any, fld: str, key: str, idx: tuple[int, ...]) -> bool:
-    """True when ``res`` held this entry at its prior (not estimated from the data)."""
-    entries = _srt_not_estimated(res)
-    if entries is not None and key not in ('gyroscope.bias',):
-        return (fld, tuple(idx)) in entries
-    return key in tuple(getattr(res, 'fixed', ()))
+_srt_not_estimated = srt_not_estimated  # the name the tests knew
 
 
 #: micro-g per m/s^2 (standard gravity)
@@ -91,8 +69,12 @@ def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> s
     # the papers' methods average over their windows instead, so for them this truth is off
     # by the in-run drift (nav grade: 0.0005 deg/h, 2 ug Gauss-Markov sigma)
     tracked = truth.tracked_truth() if truth is not None else None
-    for fld, label, k, unit, key in ROWS:
+    for fld, label, k, key in ROWS:
+        if all(is_fixed(res, fld, key, idx) and not np.any(np.asarray(
+                getattr(res.errors, fld))) for _, res in results for idx in _entries(fld)):
+            continue  # held at zero by every method: the parameter blocks say so once
         for idx in _entries(fld):
+            unit = element_unit(key, idx)
             tag = label + '[' + ','.join('xyz'[i] for i in idx) + ']'
             r = f'<tr><td>{tag}</td><td>{unit}</td>'
             tv = None
@@ -118,30 +100,44 @@ def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> s
 
 
 def srt_plot(extra: dict[str, Any]) -> str | None:
-    """Stationary-window accelerations per SRT sequence: measured Delta a_H and residual."""
+    """Stationary-window accelerations per SRT sequence: measured Delta a_H and residual.
+
+    One tick per sequence (not per row: 70 row labels are unreadable), sequences shaded
+    alternately, the rows of a sequence side by side within its band.
+    """
     seqs = extra.get('srt', {}).get('sequences')
     if not seqs:
         return None
-    labels, meas, res, sig = [], [], [], []
+    meas, res, sig, centres, names, bands = [], [], [], [], [], []
+    x0 = 0
     for s in seqs:
-        for row, m, r, sg in zip(s['rows'], s['delta_a_h_m_s2'], s['residual_m_s2'],
-                                 s['sigma_m_s2']):
-            labels.append(row)
-            meas.append(m * UG_PER_M_S2)
-            res.append(r * UG_PER_M_S2)
-            sig.append(sg * UG_PER_M_S2)
-    fig, ax = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
-    x = np.arange(len(labels))
-    ax[0].bar(x, meas)
-    ax[0].set_ylabel('Delta a_H [ug]')
-    ax[0].set_title('SRT horizontal acceleration change per sequence (start-frame, eq. 1), '
-                    'as measured before the SRT correction')
-    ax[1].errorbar(x, res, yerr=3 * np.array(sig), fmt='o', ms=3)
+        n = len(s['rows'])
+        meas += [m * UG_PER_M_S2 for m in s['delta_a_h_m_s2']]
+        res += [r * UG_PER_M_S2 for r in s['residual_m_s2']]
+        sig += [g * UG_PER_M_S2 for g in s['sigma_m_s2']]
+        centres.append(x0 + (n - 1) / 2)
+        names.append(str(s['label']).replace('srt:', ''))
+        bands.append((x0 - 0.5, x0 + n - 0.5))
+        x0 += n
+    width = min(max(8.0, 0.16 * x0 + 2), 16.0)
+    fig, ax = plt.subplots(2, 1, figsize=(width, 5.5), sharex=True)
+    x = np.arange(x0)
+    ax[0].bar(x, meas, color='tab:blue')
+    ax[0].set_ylabel('measured Delta a_H [ug]')
+    ax[0].set_title(f'SRT: horizontal acceleration change over each of {len(seqs)} sequences '
+                    '(Savage eq. 1), before the correction', fontsize=10)
+    ax[1].errorbar(x, res, yerr=3 * np.array(sig), fmt='o', ms=3, color='tab:red')
     ax[1].axhline(0, color='k', lw=0.5)
-    ax[1].set_ylabel('residual after fit [ug]\n(3 sigma bars)')
+    ax[1].set_ylabel('residual after the fit [ug]\n(bars: 3 sigma)')
     for a in ax:  # ug values, not a matplotlib offset/scale factor hiding the unit
         a.ticklabel_format(axis='y', style='plain', useOffset=False)
-    ax[1].set_xticks(x, labels, rotation=90, fontsize=6)
+        for k, (lo, hi) in enumerate(bands):
+            if k % 2:
+                a.axvspan(lo, hi, color='0.92', zorder=0)
+    ax[1].set_xticks(centres, names, rotation=90 if len(seqs) > 16 else 0, fontsize=8)
+    ax[1].set_xlabel('SRT sequence (Savage Table 1 id; seq:N = several sequences the dwells '
+                     'did not separate)')
+    ax[1].set_xlim(-0.5, x0 - 0.5)
     return _png(fig)
 
 
@@ -163,31 +159,276 @@ def velocity_plot(extra: dict[str, Any]) -> str | None:
     return _png(fig)
 
 
-def convergence_plot(extra: dict[str, Any]) -> str | None:
-    """Estimate history with 3-sigma bands if ``extra.history`` is present.
+UNIT_NAMES = {'ppm/g': 'ug/g^2'}  # the same unit; the parameter blocks' name
 
-    Accepted layout: ``{'t_s': [...], 'names': [...], 'value': [[...]], 'sigma': [[...]]}``.
-    """
+
+def _element(group: str, i: int) -> str:
+    """``'x'``, ``'xy'``: the entry a state of ``group`` is (error_model's orders)."""
+    from ..core.estimator.error_model import MIS_SYM, OFF6
+    pairs = {'gyro_misalignment': MIS_SYM, 'accel_misalignment': OFF6, 'size_effect': OFF6,
+             'gyro_g_sensitivity': tuple((a, b) for a in range(3) for b in range(3))}
+    if group in pairs:
+        return ''.join('xyz'[k] for k in pairs[group][i])
+    return 'xyz'[i] if i < 3 else str(i)
+
+
+def _history_groups(h: dict[str, Any]) -> list[tuple[str, list[int], float, str]]:
+    """(group, columns, SI per unit, unit) of a history's state labels, in state order."""
+    from ..core.estimator.error_model import GROUP_INFO
+    out: dict[str, list[int]] = {}
+    for i, n in enumerate(h.get('names') or []):
+        out.setdefault(str(n).split('[')[0], []).append(i)
+    return [(g, cols, GROUP_INFO[g][2], GROUP_INFO[g][3]) for g, cols in out.items()
+            if g in GROUP_INFO]
+
+
+def convergence_plot(extra: dict[str, Any], truth_values: dict[str, float] | None = None
+                     ) -> str | None:
+    """Estimates against time with 3-sigma bands, one panel per state group, in
+    engineering units (``extra.history``, recorded by the streaming estimator)."""
     h = extra.get('history')
-    if not isinstance(h, dict) or not {'t_s', 'value', 'sigma'} <= set(h):
+    if not isinstance(h, dict) or not {'t_s', 'value', 'sigma', 'names'} <= set(h):
         return None
     t = np.asarray(h['t_s'], float)
     v = np.asarray(h['value'], float)
     s = np.asarray(h['sigma'], float)
-    names = h.get('names') or [str(i) for i in range(v.shape[1])]
-    n = min(v.shape[1], 12)
-    fig, axes = plt.subplots((n + 3) // 4, 4, figsize=(14, 2.4 * ((n + 3) // 4)),
-                             squeeze=False)
-    for i in range(n):
-        ax = axes[i // 4][i % 4]
-        ax.plot(t, v[:, i])
-        ax.fill_between(t, v[:, i] - 3 * s[:, i], v[:, i] + 3 * s[:, i], alpha=0.3)
-        ax.set_title(names[i], fontsize=8)
+    groups = _history_groups(h)
+    if not groups or len(t) < 2:
+        return None
+    ncol = 3
+    nrow = (len(groups) + ncol - 1) // ncol
+    fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.6 * nrow), squeeze=False)
+    for k, (g, cols, si, unit) in enumerate(groups):
+        ax = axes[k // ncol][k % ncol]
+        for c_i, c in enumerate(cols):
+            color = f'C{c_i % 10}'
+            ax.plot(t, v[:, c] / si, color=color, lw=1, label=_element(g, c_i))
+            ax.fill_between(t, (v[:, c] - 3 * s[:, c]) / si, (v[:, c] + 3 * s[:, c]) / si,
+                            color=color, alpha=0.15, lw=0)
+            if truth_values and h['names'][c] in truth_values:
+                ax.axhline(truth_values[h['names'][c]] / si, color=color, ls='--', lw=0.8)
+        # the final 3-sigma bands set the scale; the prior's would flatten the end
+        lo = np.min((v[-1, cols] - 6 * s[-1, cols]) / si)
+        hi = np.max((v[-1, cols] + 6 * s[-1, cols]) / si)
+        if np.isfinite(lo) and hi > lo:
+            ax.set_ylim(lo, hi)
+        ax.set_title(f'{g} [{UNIT_NAMES.get(unit, unit)}]', fontsize=9)
+        ax.tick_params(labelsize=7)
+        if len(cols) <= 9:
+            ax.legend(fontsize=6, ncol=min(len(cols), 9), loc='upper right')
+    for k in range(len(groups), nrow * ncol):
+        axes[k // ncol][k % ncol].axis('off')
+    for a in axes[-1]:
+        a.set_xlabel('t [s] from the alignment', fontsize=8)
+    fig.suptitle('estimate and 3-sigma band against time (dashed: truth); y range: final '
+                 'value +- 6 sigma', fontsize=10)
+    fig.tight_layout()
     return _png(fig)
 
 
+def sigma_plot(extra: dict[str, Any]) -> str | None:
+    """Each state's sigma over its initial sigma against time (log): what the plan taught
+    the filter, and when."""
+    h = extra.get('history')
+    if not isinstance(h, dict) or not {'t_s', 'sigma', 'names'} <= set(h):
+        return None
+    t = np.asarray(h['t_s'], float)
+    s = np.asarray(h['sigma'], float)
+    groups = _history_groups(h)
+    if not groups or len(t) < 2:
+        return None
+    sides = (('gyroscope', lambda g: g.startswith('gyro')),
+             ('accelerometer', lambda g: g.startswith('accel') or g in ('size_effect',
+                                                                         'time_offset')),
+             ('fixture (lever arm, mounting)', lambda g: g in ('lever_arm', 'mounting')))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.4), sharey=True)
+    for ax, (title, pick) in zip(axes, sides):
+        k = 0
+        for g, cols, _, _ in groups:
+            if not pick(g):
+                continue
+            rel = s[:, cols] / np.where(s[0, cols] > 0, s[0, cols], 1.0)
+            for j, c in enumerate(cols):
+                ax.semilogy(t, rel[:, j], color=f'C{k % 10}', lw=1,
+                            label=g if j == 0 else None)
+            k += 1
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel('t [s]', fontsize=8)
+        ax.tick_params(labelsize=7)
+        if k:
+            ax.legend(fontsize=6)
+    axes[0].set_ylabel('sigma / initial sigma')
+    fig.tight_layout()
+    return _png(fig)
+
+
+def nis_plot(extra: dict[str, Any]) -> str | None:
+    """Mean NIS per degree of freedom of each history interval with its 99 % band."""
+    from scipy.stats import chi2
+    h = extra.get('history')
+    nis = (h or {}).get('nis') if isinstance(h, dict) else None
+    if not nis:
+        return None
+    t = np.asarray(h['t_s'], float)
+    fig, axes = plt.subplots(1, len(nis), figsize=(6.5 * len(nis), 3), squeeze=False)
+    for ax, (kind, d) in zip(axes[0], nis.items()):
+        n = np.asarray(d['accepted'], float)
+        ok = n > 0
+        dof = 3 * n[ok]
+        mean = np.asarray(d['sum'], float)[ok] / dof
+        ax.fill_between(t[ok], chi2.ppf(0.005, dof) / dof, chi2.ppf(0.995, dof) / dof,
+                        step='mid', color='tab:green', alpha=0.2, label='99 % band')
+        ax.plot(t[ok], mean, 'o-', ms=3, lw=1, label='mean NIS / dof')
+        gated = np.asarray(d['gated'], float)
+        if gated.any():
+            ax.plot(t[gated > 0], np.full(int((gated > 0).sum()), ax.get_ylim()[1]), 'rv',
+                    label='gated updates')
+        ax.axhline(1.0, color='k', lw=0.5)
+        ax.set_title(f'{kind} updates ({int(n.sum())} accepted, {int(gated.sum())} gated)',
+                     fontsize=9)
+        ax.set_xlabel('t [s]')
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel('NIS per dof')
+    fig.tight_layout()
+    return _png(fig)
+
+
+def joint_plot(bag: Any) -> str | None:
+    """Joint angles against time with the stationary windows (the plan's dwells) shaded."""
+    if bag is None or len(bag.t_joint_s) < 2:
+        return None
+    fig, ax = plt.subplots(figsize=(13, 3))
+    for k, name in enumerate(bag.joint_names):
+        ax.plot(bag.t_joint_s, bag.q_deg[:, k], lw=1, label=name)
+    for k, (a, b) in enumerate(bag.windows_s):
+        ax.axvspan(a, b, color='tab:green', alpha=0.15, lw=0,
+                   label='stationary window' if k == 0 else None)
+    ax.set_xlabel('t [s] from the first IMU sample')
+    ax.set_ylabel('joint angle [deg]')
+    ax.legend(fontsize=7, ncol=len(bag.joint_names) + 1, loc='upper left')
+    ax.set_title(f'{len(bag.windows_s)} stationary windows, {bag.segments} motion segments',
+                 fontsize=9)
+    return _png(fig)
+
+
+def allan_plot(bag: Any, noise: dict[str, Any] | None) -> str | None:
+    """Allan deviation of each axis from the stationary windows, with the white-noise line
+    of the density the run used (``sigma(tau) = N / sqrt(tau)``)."""
+    al = getattr(bag, 'allan', None)
+    if al is None or len(al.tau_s) < 2:
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.6))
+    specs = ((axes[0], al.gyro_rad_s, 1.0 / DEG_H, 'deg/h', 'gyro_noise_rad_s_rt_hz',
+              'gyroscopes'),
+             (axes[1], al.accel_m_s2, UG_PER_M_S2, 'ug', 'accel_noise_m_s2_rt_hz',
+              'accelerometers'))
+    for ax, ad, k, unit, key, title in specs:
+        for i in range(3):
+            ax.loglog(al.tau_s, ad[:, i] * k, 'o-', ms=3, lw=1, label='xyz'[i])
+        N = (noise or {}).get(key)
+        if N:
+            # the Allan deviation of white rate noise of density N [unit/sqrt(Hz)] is
+            # N / sqrt(tau) (IEEE Std 952, C.1)
+            ax.loglog(al.tau_s, N * k / np.sqrt(al.tau_s), 'k--', lw=1,
+                      label=f'white noise used: {N * k:.3g} {unit}/sqrt(Hz)')
+        ax.set_xlabel('tau [s]')
+        ax.set_ylabel(f'Allan deviation [{unit}]')
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=7)
+        ax.grid(True, which='both', lw=0.3)
+    fig.suptitle(f'{al.windows} stationary windows, {al.seconds:.0f} s at rest', fontsize=9)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def nav_plot(bag: Any) -> str | None:
+    """Navigated horizontal velocity over the bag: no calibration, the estimate, others."""
+    nav = getattr(bag, 'nav', None)
+    if not nav:
+        return None
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.2), sharex=True)
+    for k, (name, (t, v)) in enumerate(nav.items()):
+        for i, ax in enumerate(axes):
+            ax.plot(t, v[:, i], lw=1, color=f'C{k}', label=name)
+    for i, ax in enumerate(axes):
+        ax.set_title(f'velocity error {"ENU"[i]}', fontsize=9)
+        ax.set_xlabel('t [s] from the first stationary window')
+        ax.set_yscale('symlog', linthresh=1e-3)
+    axes[0].set_ylabel('[m/s] (symlog)')
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return _png(fig)
+
+
+DEG_H = np.pi / 180.0 / 3600.0
+
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x))
+
+
+def header_html(calib: Any, calib_path: str | None, fixture: Any, bag: Any,
+                generated: str) -> str:
+    """The document's header: what was calibrated, from what, with what, by what."""
+    from .. import __version__
+    ex = calib.extra
+    est = ex.get('estimator') or {}
+    method = ex.get('method', 'ekf' if est else 'unknown')
+    rows: list[tuple[str, str]] = [('unit (frame_id)', calib.frame_id),
+                                   ('calibration file', calib_path or '-'),
+                                   ('method', str(method))]
+    if bag is not None:
+        rows += list(bag.summary().items())
+    elif (ex.get('provenance') or {}).get('bag_reader', {}).get('bag'):
+        rows.append(('bag', ex['provenance']['bag_reader']['bag'] + ' (not read: no --bag)'))
+    if fixture is not None:
+        joints = ', '.join(f'{j.name} {np.round(np.asarray(j.axis, float), 3).tolist()}'
+                           for j in fixture.joints)
+        rows.append(('fixture', f'{fixture.source or "-"}: joints (outermost first) {joints}; '
+                                f'latitude {fixture.site.latitude_deg:.4f} deg, height '
+                                f'{fixture.site.height_m:g} m'))
+    cs = est.get('coarse_start')
+    if cs:
+        rows.append(('noise used (measured)',
+                     f'gyro {cs["gyro_noise_rad_s_rt_hz"] / DEG_H / 60:.3g} deg/sqrt(h) '
+                     f'({cs["gyro_noise_rad_s_rt_hz"] / DEG_H:.3g} deg/h/sqrt(Hz)), accel '
+                     f'{cs["accel_noise_m_s2_rt_hz"] * UG_PER_M_S2:.3g} ug/sqrt(Hz), from '
+                     f'{cs.get("static_windows", "?")} stationary windows'))
+    elif ex.get('srt', {}).get('noise'):
+        rows.append(('noise used', ', '.join(f'{k} {v:.3g}' for k, v in
+                                             ex['srt']['noise'].items()
+                                             if isinstance(v, (int, float)))))
+    if est.get('estimated_groups'):
+        rows.append(('estimator', f'states: {", ".join(est["estimated_groups"])}; encoder '
+                                  'attitude aiding '
+                                  f'{"on" if est.get("attitude_aiding") else "off"}'
+                                  f'; time offset {1e3 * est.get("time_offset_s", 0.0):.3g} ms'))
+    h = ex.get('history')
+    if isinstance(h, dict) and h.get('t_s'):
+        rows.append(('run', f'{h["t_s"][-1]:.1f} s filtered; history of {len(h["t_s"])} '
+                            f'points every {h.get("period_s", 0):g} s or more'))
+    rows += [('software', f'imu_calib_ros {__version__}'), ('report generated', generated)]
+    body = ''.join(f'<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>' for k, v in rows)
+    return f'<table class="header">{body}</table>'
+
+
+def within_3_sigma(calib: Any, truth: Any) -> tuple[int, int]:
+    """(estimated entries within 3 sigma of the truth, estimated entries compared)."""
+    from ..core.param_table import blocks
+    tb = {b.key: b for b in blocks(calib, truth.tracked_truth())}
+    n_in = n = 0
+    for b in blocks(calib):
+        for idx in b.entries():
+            if b.fixed[idx] or not b.sigma[idx] > 0:
+                continue
+            n += 1
+            n_in += int(abs(b.value[idx] - tb[b.key].value[idx]) <= 3 * b.sigma[idx])
+    return n_in, n
+
+
 def selfcheck_table(extra: dict[str, Any]) -> str | None:
-    """The run's self-check (``provenance.self_check``, issue 17) as a table, or None."""
+    """Every check of the run's self-check (``provenance.self_check``, issue 17) with its
+    figure and limit, failed rows highlighted, or None."""
     v = (extra.get('provenance', {}) or {}).get('self_check')
     if not isinstance(v, dict):
         return None
@@ -196,64 +437,294 @@ def selfcheck_table(extra: dict[str, Any]) -> str | None:
         cls = '' if c.get('passed') else ' class="bad"'
         val, lim = (f'{x:.4g}' if isinstance(x, (int, float)) else '-'
                     for x in (c.get('value'), c.get('limit')))
-        rows.append(f'<tr{cls}><td>{html.escape(str(name))}</td><td>{val}</td><td>{lim}</td>'
-                    f'<td>{html.escape(str(c.get("text", "")))}</td></tr>')
-    cls = '' if v.get('passed') else ' class="bad"'
-    head = f'<p{cls}>{html.escape(str(v.get("summary", "")))}</p>'
-    return head + '<table>' + ''.join(rows) + '</table>'
+        reading = 'passed' if c.get('passed') else str(c.get('text', ''))
+        rows.append(f'<tr{cls}><td>{_esc(name)}</td><td>{val}</td><td>{lim}</td>'
+                    f'<td style="text-align:left">{_esc(reading)}</td></tr>')
+    return '<table>' + ''.join(rows) + '</table>'
+
+
+CHECK_NAMES = {
+    'gate': 'gated measurement updates',
+    'input.rejected': 'fraction of IMU samples rejected',
+    'input.lost': 'fraction of the recording not used',
+    'windows.chi2': 'stationary-window residuals chi2/dof',
+    'windows.worst': 'largest stationary-window residual [sigma]',
+    'plausible': 'largest sensor error [raw-unit sigmas]',
+}
+
+
+def verdict_html(calib: Any, truth: Any | None) -> str:
+    """The verdict block: self-check, health, NIS, divergence and restarts, rejected input,
+    and with a truth the count within 3 sigma."""
+    ex = calib.extra
+    v = (ex.get('provenance', {}) or {}).get('self_check')
+    health = (ex.get('estimator') or {}).get('health') or {}
+    items = []
+    if isinstance(v, dict):
+        ok = bool(v.get('passed'))
+        word = 'PASSED' if ok else ('FAILED (written with --force)' if v.get('forced')
+                                    else 'FAILED')
+        head = (f'<p class="verdict {"ok" if ok else "bad"}">Verdict: self-check {word}: '
+                f'{_esc(v.get("summary", ""))}</p>')
+        checks = v.get('checks') or {}
+        for name in ('nis.velocity', 'nis.attitude'):
+            c = checks.get(name)
+            if c:
+                items.append(f'{name.split(".")[1]} NIS per dof {c["value"]:.3g} '
+                             f'(bound {c["limit"]:.3g}): '
+                             f'{"consistent" if c["passed"] else "TOO LARGE"}')
+        for name, what in (('restarts', 'divergence restarts'),
+                           ('realignments', 're-alignments')):
+            c = checks.get(name)
+            if c:
+                items.append(f'{what}: {int(c["value"])}')
+        for name in ('gate', 'input.rejected', 'input.lost', 'windows.chi2', 'windows.worst',
+                     'plausible'):
+            c = checks.get(name)
+            if not c:
+                continue
+            if c['passed']:  # the checks' texts describe a failure; say what passed
+                lim = c.get('limit')
+                items.append(f'{CHECK_NAMES.get(name, name)}: {c["value"]:.3g} (limit '
+                             f'{lim if lim is None else format(lim, ".3g")}): passed')
+            else:
+                items.append('FAILED: ' + str(c['text']))
+    else:
+        head = ('<p class="verdict note">No self-check in this file: only EKF runs are '
+                f'self-checked (method: {_esc(ex.get("method", "unknown"))}).</p>')
+    if health:
+        items.append(f'filter health {health.get("status", "?")} ({health.get("message", "")}); '
+                     f'diverged: {"yes" if health.get("diverged") else "no"}')
+        reasons = {k: health[k] for k in ('imu_out_of_order', 'imu_non_finite',
+                                          'joint_out_of_order', 'joint_non_finite',
+                                          'joint_missing_names', 'imu_dropped_at_gap',
+                                          'gaps', 'gaps_reinitialised')
+                   if health.get(k)}
+        items.append('rejected or lost input: ' + (', '.join(f'{k} {n}' for k, n in
+                                                            reasons.items()) or 'none')
+                     + f' (of {health.get("imu_samples", "?")} IMU samples)')
+    if truth is not None:
+        n_in, n = within_3_sigma(calib, truth)
+        items.append(f'against the truth: {n_in} of {n} estimated entries within 3 sigma '
+                     f'({100 * n_in / max(n, 1):.0f} %; 99.7 % expected)')
+    return head + '<ul>' + ''.join(f'<li>{_esc(i)}</li>' for i in items) + '</ul>'
+
+
+def blocks_html(calib: Any, truth: Any | None) -> str:
+    """Every parameter as a labelled vector or 3x3 matrix: value +- sigma unit per entry,
+    significance |value|/sigma, with a truth the error in sigmas; fixed entries apart."""
+    from ..core.param_table import MATRIX_NOTES, blocks, cell_text, folded_line, matrix_title
+    tb = {b.key: b for b in blocks(calib, truth.tracked_truth())} if truth is not None else {}
+    out = ['<div class="blocks">']
+    bl = blocks(calib)
+    for b in bl:
+        if b.folded:
+            continue
+        z = b.significance()
+
+        def cell(idx: tuple[int, ...]) -> str:
+            if b.structural[idx]:
+                return '<td class="fixed">-</td>'
+            if b.fixed[idx]:
+                return (f'<td class="fixed">{_esc(cell_text(b, idx, "&plusmn;"))}'
+                        f'<br><small>assumed, sigma {b.sigma[idx]:.2g}</small></td>')
+            txt = cell_text(b, idx, '±')
+            extra = f'<br><small>|v|/&sigma; {z[idx]:.1f}'
+            cls = ''
+            if b.key in tb:
+                e = (b.value[idx] - tb[b.key].value[idx]) / b.sigma[idx]
+                extra += f'; err {e:+.1f}&sigma;'
+                cls = ' class="bad"' if abs(e) > 3 else ''
+            return f'<td{cls}>{_esc(txt)}{extra}</small></td>'
+
+        title = matrix_title(b) if b.is_matrix else f'{b.label} [{b.unit_text}]'
+        note = MATRIX_NOTES.get(b.key, '')
+        if b.is_matrix:
+            rows = ['<tr><th></th>' + ''.join(f'<th>{a}</th>' for a in 'xyz') + '</tr>']
+            for i in range(3):
+                rows.append(f'<tr><th>{"xyz"[i]}</th>' + ''.join(cell((i, j)) for j in range(3))
+                            + '</tr>')
+        else:
+            rows = ['<tr>' + ''.join(f'<th>{a}</th>' for a in 'xyz') + '</tr>',
+                    '<tr>' + ''.join(cell((i,)) for i in range(3)) + '</tr>']
+        state = ' (all fixed)' if b.all_fixed else ''
+        out.append(f'<div class="block"><h3>{_esc(title)}{state}</h3>'
+                   + (f'<p class="note">{_esc(note)}</p>' if note else '')
+                   + '<table>' + ''.join(rows) + '</table></div>')
+    out.append('</div>')
+    folded = [b for b in bl if b.folded]
+    if folded:
+        out.append(f'<p class="fixedline">{_esc(folded_line(folded))}</p>')
+    return ''.join(out)
+
+
+def change_table(calib: Any, others: Sequence[tuple[str, Any]]) -> str | None:
+    """Change of every estimated entry from each other calibration to this one, with the
+    combined sigma (two independent calibrations of the same unit)."""
+    from ..core.param_table import blocks, fmt
+    rows = []
+    for name, other in others:
+        if other.frame_id != calib.frame_id:
+            continue
+        ob = {b.key: b for b in blocks(other)}
+        for b in blocks(calib):
+            o = ob[b.key]
+            for idx in b.entries():
+                if b.fixed[idx] or o.fixed[idx]:
+                    continue
+                d = b.value[idx] - o.value[idx]
+                sc = float(np.hypot(b.sigma[idx], o.sigma[idx]))
+                z = d / sc if sc > 0 else float('nan')
+                cls = ' class="bad"' if abs(z) > 3 else ''
+                rows.append(f'<tr><td>{_esc(name)}</td><td>{_esc(b.label)}[{b.name_of(idx)}]'
+                            f'</td><td>{_esc(b.units[idx])}</td><td>{fmt(float(o.value[idx]))}'
+                            f'</td><td>{fmt(float(b.value[idx]))}</td><td>{fmt(float(d))}</td>'
+                            f'<td>{fmt(sc, 2)}</td><td{cls}>{z:+.1f}</td></tr>')
+    if not rows:
+        return None
+    head = ('<tr><th>other</th><th>parameter</th><th>unit</th><th>other value</th>'
+            '<th>this value</th><th>change</th><th>combined &sigma;</th>'
+            '<th>change/&sigma;</th></tr>')
+    return '<table>' + head + ''.join(rows) + '</table>'
+
+
+STYLE = ('<style>body{font-family:sans-serif;max-width:1250px;margin:auto;padding:0 12px}'
+         'table{border-collapse:collapse;font-size:12px}'
+         'td,th{border:1px solid #ccc;padding:2px 5px;text-align:right}'
+         'table.header th,table.header td{text-align:left}'
+         '.bad{background:#fcc}.fixed{color:#888;font-style:italic}'
+         '.note{color:#666;font-size:12px}.verdict{font-size:16px;font-weight:bold;padding:6px}'
+         '.verdict.ok{background:#dfd}.verdict.bad{background:#fcc}'
+         '.blocks{display:flex;flex-wrap:wrap;gap:14px}.block h3{font-size:13px;margin:6px 0}'
+         '.block .note{max-width:420px}.fixedline{color:#666;font-style:italic}'
+         'img{max-width:100%}'
+         '.reading{color:#333;font-size:13px;max-width:1000px}</style>')
+
+#: what a reader learns from each section (printed under its plot)
+READING = {
+    'convergence': 'Each panel is one group of states: the line is the estimate, the band its '
+                   '3-sigma interval. A band that narrows when the plan excites the parameter '
+                   'and an estimate that stays inside its later bands is a filter that learned '
+                   'from the data; a band that never narrows marks a parameter this plan does '
+                   'not determine.',
+    'sigma': 'Sigma over its initial value, per state: the steps show which part of the plan '
+             'determined which parameter; states still near 1 were not observable.',
+    'nis': 'The normalised innovation squared per interval against its 99 % band: points '
+           'above the band mean the filter was more surprised than its covariance says '
+           '(a model or noise error), points well below a pessimistic measurement noise.',
+    'joints': 'The fixture motion as recorded, with the stationary windows the estimator and '
+              'the SRT use: check that the plan ran as intended.',
+    'allan': 'The noise of the unit at rest: the white-noise part (slope -1/2) should lie on '
+             'the dashed line of the density the run assumed; a curve above it means the '
+             'sigmas of this calibration are optimistic.',
+    'nav': 'Free-inertial velocity error from rest with each calibration applied: the better '
+           'the calibration, the slower the drift (no calibration drifts fastest).',
+    'srt': 'Savage\'s SRT: the measured horizontal acceleration change of each sequence and '
+           'what the fit leaves; residuals inside their 3-sigma bars mean the error model '
+           'explains the data.',
+    'oscillation': 'Kozlov & Kapralov\'s oscillation cycles: navigated velocity per cycle.',
+}
 
 
 def build_report(calib: Any, truth: Any | None = None,
                  compare: Sequence[tuple[str, Any]] = (), title: str = 'IMU calibration',
-                 nav_velocity: tuple[np.ndarray, np.ndarray] | None = None) -> str:
+                 nav_velocity: tuple[np.ndarray, np.ndarray] | None = None, *,
+                 calib_path: str | None = None, fixture: Any = None, bag: Any = None,
+                 generated: str | None = None, figures: list[Any] | None = None) -> str:
     """The HTML page as a string.
 
     Parameters
     ----------
     calib : CalibrationResult
-        The main result; ``extra`` may carry ``srt``, ``oscillation`` and ``history``.
+        The main result; ``extra`` may carry ``history``, ``provenance.self_check``,
+        ``estimator``, ``srt`` and ``oscillation``.
     truth : CalibrationResult, optional
-        Simulator truth for the error columns.
+        Simulator truth: error in sigmas per entry, count within 3 sigma.
     compare : sequence of (name, CalibrationResult)
-        Other methods to put beside it.
+        Other calibrations: side by side and the change from each.
     nav_velocity : (t_s, v_enu_m_s), optional
-        Navigated velocity over a bag with the calibration applied.
+        Navigated velocity error with the calibration applied (when no ``bag``).
+    bag : :class:`~.bag_facts.BagFacts`, optional
+        The bag: header figures, joint timeline, Allan deviation, navigated velocities.
+
+    Sections the calibration has no data for are left out; the page says once which.
     """
-    name = str(calib.extra.get('method', 'calibration'))
-    parts = [f'<h1>{html.escape(title)}</h1>',
-             '<h2>Methods side by side</h2>',
-             comparison_table([(name, calib), *compare], truth)]
-    check = selfcheck_table(calib.extra)
-    if check:
-        parts += ['<h2>Self-check of the run</h2>', check]
-    sections = [('Estimate convergence (3-sigma bands)', convergence_plot(calib.extra),
-                 'no extra.history in the calibration file: convergence plot skipped'),
-                ('Navigated velocity in the oscillation cycles (Kozlov Fig. 4 analogue)',
-                 velocity_plot(calib.extra), 'no oscillation cycles in this calibration'),
-                ('Stationary-window accelerations per SRT sequence', srt_plot(calib.extra),
-                 'no SRT sequences in this calibration')]
-    for _, other in compare:
-        for head, fn in (('(compare) SRT', srt_plot), ('(compare) oscillation', velocity_plot)):
-            img = fn(other.extra)
-            if img:
-                sections.append((head, img, ''))
-    if nav_velocity is not None:
-        t, v = nav_velocity
-        fig, ax = plt.subplots(figsize=(8, 3))
-        ax.plot(t, v)
-        ax.set_xlabel('t [s]')
-        ax.set_ylabel('navigated velocity error [m/s]')
-        ax.legend(['E', 'N', 'U'])
-        ax.set_title('from rest at the first stationary window, levelled on its '
-                     'accelerometers; lever-arm velocity removed', fontsize=8)
-        sections.append(('Navigated velocity over the bag (calibration applied)', _png(fig), ''))
-    for head, img, note in sections:
-        parts.append(f'<h2>{html.escape(head)}</h2>')
-        parts.append(img if img else f'<p class="note">{html.escape(note)}</p>')
-    style = ('<style>body{font-family:sans-serif}table{border-collapse:collapse;font-size:11px}'
-             'td,th{border:1px solid #ccc;padding:2px 4px}.bad{background:#fcc}'
-             '.fixed{color:#888;font-style:italic}'
-             '.note{color:#777}</style>')
-    return ('<!DOCTYPE html><html><head><meta charset="utf-8"><title>'
-            + html.escape(title) + '</title>' + style + '</head><body>'
-            + '\n'.join(parts) + '</body></html>')
+    import datetime
+    generated = generated or datetime.datetime.now().astimezone().isoformat(timespec='seconds')
+    if bag is None and nav_velocity is not None:
+        from .bag_facts import BagFacts
+        bag = BagFacts('', '', 0.0, 0, 0.0, (), np.zeros(0), np.zeros((0, 0)), [],
+                       nav={'this calibration': nav_velocity})
+    name = str(calib.extra.get('method', 'this calibration'))
+    ex = calib.extra
+    parts = [f'<h1>{_esc(title)}</h1>',
+             header_html(calib, calib_path, fixture, bag if bag and bag.path else None,
+                         generated),
+             '<h2>Verdict</h2>', verdict_html(calib, truth)]
+    checks = selfcheck_table(ex)
+    if checks:
+        parts += ['<h3>Self-check of the run</h3>', checks]
+    parts += ['<h2>Parameters</h2>',
+              '<p class="note">value &plusmn; one sigma in engineering units per entry; '
+              '|v|/&sigma;: significance of the value; italic grey: not estimated (held at '
+              'its assumed value with its assumed sigma).</p>',
+              blocks_html(calib, truth)]
+    truth_values = None
+    if truth is not None and isinstance(ex.get('history'), dict):
+        truth_values = _truth_by_label(truth, ex['history'].get('names') or [])
+    noise = (ex.get('estimator') or {}).get('coarse_start')
+    missing: list[str] = []
+    plots = [('Convergence of the estimates', 'convergence',
+              convergence_plot(ex, truth_values), 'no estimate history (not an EKF run)'),
+             ('What the data determined', 'sigma', sigma_plot(ex), None),
+             ('Innovation consistency (NIS) against time', 'nis', nis_plot(ex), None),
+             ('Fixture motion and plan segments', 'joints', joint_plot(bag),
+              'no joint timeline (give --bag and --fixture)'),
+             ('Noise: Allan deviation at rest', 'allan', allan_plot(bag, noise),
+              'no Allan deviation (give --bag and --fixture)'),
+             ('Navigated velocity over the bag', 'nav', nav_plot(bag),
+              'no navigated velocity (give --bag and --fixture)'),
+             ('SRT sequences', 'srt', srt_plot(ex), None),
+             ('Oscillation cycles (Kozlov Fig. 4 analogue)', 'oscillation', velocity_plot(ex),
+              None)]
+    for other_name, other in compare:
+        plots.append((f'SRT sequences of {other_name}', 'srt', srt_plot(other.extra), None))
+    for head, key, img, why in plots:
+        if img is None:
+            if why:
+                missing.append(why)
+            continue
+        if figures is not None:
+            figures.append(head)
+        parts += [f'<h2>{_esc(head)}</h2>', img, f'<p class="reading">{_esc(READING[key])}</p>']
+    if compare:
+        ch = change_table(calib, compare)
+        if ch:
+            parts += ['<h2>Change from the other calibrations of this unit</h2>',
+                      '<p class="note">this minus the other, entries estimated in both; '
+                      'combined sigma = sqrt(sigma1^2 + sigma2^2) (independent runs). Drift '
+                      'beyond 3 combined sigmas is a change of the unit (or of the '
+                      'set-up).</p>', ch]
+    if compare or truth is not None:
+        parts += ['<h2>Methods side by side' + (' and against the truth' if truth else '')
+                  + '</h2>', comparison_table([(name, calib), *compare], truth)]
+    if missing:
+        parts.append('<p class="note">Not in this report: ' + _esc('; '.join(missing))
+                     + '.</p>')
+    return ('<!DOCTYPE html><html><head><meta charset="utf-8"><title>' + _esc(title)
+            + '</title>' + STYLE + '</head><body>' + '\n'.join(parts) + '</body></html>')
+
+
+def _truth_by_label(truth: Any, labels: Sequence[str]) -> dict[str, float]:
+    """Truth values (SI) of the history's state labels that are sensor errors."""
+    from ..core.estimator import error_model as em
+    tg, ta = em.theta_from_errors(truth.tracked_truth())
+    out: dict[str, float] = {}
+    for lab in labels:
+        g = lab.split('[')[0]
+        i = int(lab.split('[')[1][:-1])
+        if g in em.GYRO_GROUPS:
+            out[lab] = float(tg[em.gyro_cols(g)][i])
+        elif g in em.ACCEL_GROUPS and g != 'time_offset':
+            out[lab] = float(ta[em.accel_cols(g)][i])
+    return out

@@ -190,6 +190,11 @@ class StateLayout:
             out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
         return out
 
+    @property
+    def state_labels(self) -> tuple[str, ...]:
+        """The labels of the calibration states (:meth:`labels` without psi and dv)."""
+        return tuple(self.labels()[6:])
+
 
 # --- SensorErrors <-> flat parameter vectors ---------------------------------------------
 

@@ -54,6 +54,7 @@ from .buffers import ImuBuffer, JointBuffer, point_to_mean
 from .coarse import CoarseStart
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
+from .history import EstimateHistory
 from .health import (NisWindow, bridge_gap, numerical_fault, restart_covariance,
                      rollback_covariance, snapshots, state_out_of_range, status, widen_for_gaps)
 from .measurements import (MEAS_SCALE, encoder_attitude, noise_covariance, to_filter_units,
@@ -160,6 +161,8 @@ class CalibrationEstimator:
         # restart and re-initialisation), for the whole-run NIS (self-check, covariance scale)
         self._run_counters: list[Any] = []
         self.first_filter_dropped: int | None = None  # imu_dropped_before_alignment then
+        # issue 12: values, sigmas and NIS against time (extra.history of the result)
+        self.history = EstimateHistory()
 
     def reset_navigation(self) -> None:
         """Restart the navigation after a backward time jump (a looping bag, ``use_sim_time``).
@@ -229,6 +232,7 @@ class CalibrationEstimator:
             self._finish_bootstrap(final=True)
         self._process(final=True)
         self._check_divergence()
+        self._record_history(force=True)
 
     def filter_accepted(self, kind: str) -> int:
         """Accepted updates of one kind (``'velocity'`` or ``'attitude'``)."""
@@ -281,8 +285,10 @@ class CalibrationEstimator:
             st = dataclasses.replace(st, covariance=st.covariance * scale)
         return calibration_result(
             st, self.layout, self._prior, frame_id or self._frame(),
-            lambda sd: {'estimator': estimator_extra(st, sd, self.layout, self.health(),
-                                                     self.attitude_aiding, self.start)})
+            lambda sd: {'estimator': {**estimator_extra(st, sd, self.layout, self.health(),
+                                                        self.attitude_aiding, self.start),
+                                      'covariance_scale': float(scale)},
+                        **({'history': h} if (h := self.history.as_dict()) else {})})
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
@@ -476,6 +482,17 @@ class CalibrationEstimator:
         self._t_last_ns = int(t[m - 1])
         self.counters['imu_processed'] += m
         self.counters['chunks'] += B
+        self._record_history()
+
+    def _record_history(self, force: bool = False) -> None:
+        """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""
+        filt = self._filter
+        if filt is None or self._t_last_ns is None:
+            return
+        lay = self.layout
+        sd = np.sqrt(np.clip(np.diag(filt.P)[6:], 0.0, None)) * lay.scale[6:]
+        self.history.record(self._t_last_ns, lay.state_labels, self._state_values(), sd,
+                            filt.counters, force)
 
     def _encoder_attitude(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray
                           ) -> tuple[FloatArray | None, FloatArray | None, NDArray[np.bool_]]:

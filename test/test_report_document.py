@@ -1,0 +1,173 @@
+"""Issue 12: the report and the replay summary as documents an IMU engineer can check: the
+units of each entry, fixed parameters apart, the verdict, the sections and the plots."""
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+
+from imu_calib_ros.core.calibration import CalibrationResult
+from imu_calib_ros.core.estimator import CalibrationEstimator, EstimatorConfig
+from imu_calib_ros.core.fixture import load_fixture
+from imu_calib_ros.core.imu_grade import load_grade
+from imu_calib_ros.core.param_table import blocks, format_text
+from imu_calib_ros.core.plans import build_profile, load_plan
+from imu_calib_ros.core.simulator import SimConfig, simulate
+
+
+@pytest.fixture(scope='module')
+def ekf(tmp_path_factory):
+    """An EKF calibration of demo_short (nav grade) through its file, and the truth."""
+    fx = load_fixture('three_axis')
+    sim = simulate(fx, build_profile(load_plan('demo_short'), fx), load_grade('nav_grade'),
+                   SimConfig(imu_rate_hz=100.0, seed=1))
+    est = CalibrationEstimator(fx, None, EstimatorConfig())
+    est.push_joint_batch(sim.joints)
+    est.push_imu_batch(sim.imu)
+    est.flush()
+    from imu_calib_ros.core.estimator.selfcheck import with_verdict
+    res = est.estimate()
+    verdict = {'passed': True, 'summary': 'self-check passed (2 checks, false-alarm rate 1 %)',
+               'checks': {'nis.velocity': {'passed': True, 'value': 1.0, 'limit': 1.06,
+                                           'text': 'velocity NIS ...'},
+                          'restarts': {'passed': True, 'value': 0.0, 'limit': 0.0,
+                                       'text': 'restarted 0 time(s)'}}}
+    res = dataclasses.replace(res, extra=with_verdict(res.extra, verdict))
+    p = tmp_path_factory.mktemp('ekf') / 'calib.yaml'
+    res.save(p)
+    return CalibrationResult.load(p), sim.truth, p
+
+
+def _imgs(page: str) -> int:
+    return len(re.findall(r'src="data:image/png;base64,', page))
+
+
+def _text(page: str) -> str:
+    return re.sub(r'<[^>]+>', ' ', page)
+
+
+def test_units_per_entry_ppm_on_the_diagonal_urad_off_it(ekf) -> None:
+    calib, _, _ = ekf
+    bl = {b.key: b for b in blocks(calib)}
+    for key in ('gyroscope.scale_misalignment', 'accelerometer.scale_misalignment'):
+        u = bl[key].units
+        assert all(u[i, i] == 'ppm' for i in range(3))
+        assert all(u[i, j] == 'urad' for i in range(3) for j in range(3) if i != j)
+    assert bl['gyroscope.bias'].units.tolist() == ['deg/h'] * 3
+    assert bl['accelerometer.size_effect'].structural.diagonal().all()
+    text = format_text(calib)
+    assert 'ppm|urad' not in text and 'ppm/urad' not in text
+    # the Kg block: a header row x y z, then rows x, y, z with ppm on the diagonal only
+    lines = text.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith('gyro Kg'))
+    assert lines[k + 1].split() == ['x', 'y', 'z']
+    for i, row in enumerate(lines[k + 2:k + 5]):
+        cells = re.findall(r'(-?[\d.e+-]+ \+- [\d.e+-]+ (\w+))', row)
+        assert row.split()[0] == 'xyz'[i] and len(cells) == 3, row
+        assert [c[1] for c in cells] == ['ppm' if j == i else 'urad' for j in range(3)], row
+
+
+def test_fixed_parameters_are_never_shown_as_estimates() -> None:
+    """An SRT run that could not separate its sequences holds most of Kg fixed: those
+    entries say '(fixed)' and carry no sigma; the estimated diagonal keeps its +-."""
+    from imu_calib_ros.core.sensor_model import SensorErrors
+    e = SensorErrors.zeros()
+    kg = np.diag([12e-6, 14e-6, -31e-6])
+    e = dataclasses.replace(e, gyro_scale_misalignment=kg)
+    s = dataclasses.replace(SensorErrors.zeros(), gyro_scale_misalignment=np.full((3, 3), 15e-6),
+                            gyro_g_sensitivity_rad_s_per_m_s2=np.zeros((3, 3)))
+    res = CalibrationResult(e, s, 'imu', fixed=('gyroscope.scale_misalignment',
+                                                'gyroscope.g_sensitivity'),
+                            extra={'srt': {'not_estimated': ['Kg_xy', 'Kg_xz', 'Kg_yz']}})
+    text = format_text(res)
+    lines = text.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith('gyro Kg'))
+    rows = lines[k + 2:k + 5]
+    assert '12.00 +- 15 ppm' in rows[0] and rows[0].count('(fixed)') == 2
+    assert all(r.count('+-') == 1 for r in rows), rows  # only the diagonal is estimated
+    # G held at zero with zero sigma: one folded line, no block of zeros
+    assert 'gyro G (assumed exactly zero)' in lines[-1]
+    assert not any(line.startswith('gyro G [') for line in lines)
+
+
+def test_report_sections_header_verdict_and_plots(ekf) -> None:
+    from imu_calib_ros import __version__
+    from imu_calib_ros.report import build_report
+    calib, truth, path = ekf
+    figures: list[str] = []
+    page = build_report(calib, truth, calib_path=str(path), figures=figures)
+    text = _text(page)
+    for must in ('unit (frame_id)', calib.frame_id, str(path), f'imu_calib_ros {__version__}',
+                 'report generated', 'noise used (measured)', 'encoder attitude aiding off'):
+        assert must in text, must
+    assert 'Verdict: self-check PASSED' in text
+    n_in, n = map(int, re.search(r'(\d+) of (\d+) estimated entries within 3 sigma',
+                                 text).groups())
+    assert n >= 40 and n_in >= n - 2
+    # the history gives three plots; without a bag the bag's sections are named once
+    assert figures == ['Convergence of the estimates', 'What the data determined',
+                       'Innovation consistency (NIS) against time']
+    assert _imgs(page) == 3
+    assert page.count('Not in this report') == 1 and 'give --bag and --fixture' in page
+    # each plot is followed by what a reader learns from it
+    assert page.count('class="reading"') == 3
+    # parameter blocks: Kg diagonal cells in ppm, off-diagonal in urad
+    kg = page.split('<h3>gyro Kg</h3>')[1].split('</table>')[0]
+    assert kg.count(' ppm') == 3 and kg.count(' urad') == 6
+
+
+def test_a_failed_self_check_is_the_first_thing_the_page_says(ekf) -> None:
+    from imu_calib_ros.core.estimator.selfcheck import with_verdict
+    from imu_calib_ros.report import build_report
+    calib, _, _ = ekf
+    bad = {'passed': False, 'summary': 'self-check failed: velocity NIS per dof 3.2',
+           'checks': {'nis.velocity': {'passed': False, 'value': 3.2, 'limit': 1.06,
+                                       'text': 'velocity NIS per dof 3.2 over 1795 updates'},
+                      'gate': {'passed': False, 'value': 40, 'limit': 1,
+                               'text': '40 of 1795 measurement updates gated'}}}
+    extra = dict(calib.extra)
+    extra.pop('provenance')
+    forced = dataclasses.replace(calib, extra=with_verdict(extra, bad, forced=True))
+    page = build_report(forced)
+    verdict = page.split('<h2>Verdict</h2>')[1].split('<h2>')[0]
+    assert 'class="verdict bad"' in verdict
+    assert 'self-check FAILED (written with --force)' in verdict
+    assert 'TOO LARGE' in verdict and 'FAILED: 40 of 1795 measurement updates gated' in verdict
+    assert page.index('Verdict') < page.index('<h2>Parameters')
+
+
+def test_change_between_two_calibrations_uses_the_combined_sigma(ekf) -> None:
+    from imu_calib_ros.report.builder import change_table
+    calib, _, _ = ekf
+    kg = np.array(calib.errors.gyro_scale_misalignment)
+    kg[0, 0] += 5 * float(np.hypot(calib.sigma.gyro_scale_misalignment[0][0],
+                                   calib.sigma.gyro_scale_misalignment[0][0]))
+    old = dataclasses.replace(calib, errors=dataclasses.replace(calib.errors,
+                                                                gyro_scale_misalignment=kg))
+    table = change_table(calib, [('old', old)])
+    row = next(r for r in table.split('<tr>') if 'gyro Kg[xx]' in r)
+    assert 'class="bad">-5.0<' in row  # this minus old: -5 combined sigmas, flagged
+    row = next(r for r in table.split('<tr>') if 'gyro Kg[yy]' in r)
+    assert '>+0.0<' in row
+
+
+def test_history_plots_and_pdf(ekf, tmp_path, capsys) -> None:
+    """The CLI writes the HTML and, with --pdf, a PDF with a page per plot."""
+    from imu_calib_ros.cli import main
+    _, _, path = ekf
+    out, pdf = tmp_path / 'r.html', tmp_path / 'r.pdf'
+    assert main(['report', str(path), '--output', str(out), '--pdf', str(pdf)]) == 0
+    data = pdf.read_bytes()
+    assert data[:5] == b'%PDF-'
+    pages = len(re.findall(rb'/Type\s*/Page[^s]', data))
+    assert pages >= 1 + 3, pages  # text, then convergence, sigma, NIS
+
+
+def test_replay_summary_is_the_param_table() -> None:
+    """The replay summary is format_text (one layout code for the terminal and the report)."""
+    from imu_calib_ros.cli.replay import _summary
+    from imu_calib_ros.core.sensor_model import SensorErrors
+    res = CalibrationResult.exact(SensorErrors.zeros())
+    assert _summary(res) == format_text(res)
