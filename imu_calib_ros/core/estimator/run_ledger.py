@@ -40,6 +40,7 @@ MIN_WINDOW_S = 1.0  # stationary windows of at least this (after the coarse star
 MAX_WINDOWS = 300  # the longest windows if there are more (a 1800 x 1800 covariance)
 JUMP_BACK_NS = 1_000_000_000  # a stamp this much older than the newest: a new recording
 SAME_POSE_RAD = 1e-3  # bias_walk: two windows at one pose (every joint within this)
+WALK_SHORT_S = 600.0  # bias_walk: pairs this close in time for the short-range walk
 WALK_CHECK_NS = 60_000_000_000  # bias_walk handed to the estimator every 60 s of data
 PLAUSIBLE_GROUPS = ('gyro_scale', 'gyro_misalignment', 'accel_scale', 'accel_misalignment')
 
@@ -248,7 +249,11 @@ class RunLedger:
         bias change between them. ``E[d^2] - s_i^2 - s_j^2 = a + q |t_j - t_i|`` over the
         pairs (``a`` absorbs a misjudged white noise), by least squares; a slope counts when
         it stands out (t > 3, its standard error that of the windows, not of the pairs that
-        share them). Plans that never return to a pose give 0."""
+        share them). A Gauss-Markov instability of ~100 s (MEMS) grows over the first pairs
+        and then saturates, which a straight line through all pairs does not show; so also
+        ``q = sum y / sum |t_j - t_i|`` over the pairs at most :data:`WALK_SHORT_S` apart
+        (the walk that explains their scatter), counted when ``mean y`` stands out (> 3
+        standard errors); the larger of the two. Plans that never return to a pose give 0."""
         wins = self.windows()
         if len(wins) < 4 or self._dt_ns <= 0:
             return 0.0, 0.0, 0
@@ -271,7 +276,16 @@ class RunLedger:
             r = y - X @ beta
             cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / used
             slope, se = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
-            out.append(slope if slope > 0 and slope > 3 * se else 0.0)
+            q_line = slope if slope > 0 and slope > 3 * se else 0.0
+            short = X[:, 1] <= WALK_SHORT_S
+            q_short = 0.0
+            if short.sum() >= 6:
+                ys = y[short]
+                used_s = len(set(i[short].tolist()) | set(j[short].tolist()))
+                se_s = float(np.std(ys)) / math.sqrt(max(used_s, 1))
+                if float(np.mean(ys)) > 3 * se_s:
+                    q_short = float(ys.sum() / X[short, 1].sum())
+            out.append(max(q_line, q_short))
         return out[0], out[1], int(len(i))
 
     def _check_walk(self) -> None:
