@@ -1,0 +1,111 @@
+"""Issue 11 item 5 in the run: the biases' random walk from stationary windows at one pose.
+
+``RunLedger.bias_walk`` pairs the run's stationary windows at the same joint angles (the
+compensation is then the same function of the same input, so the calibration's error cancels
+in the difference) and fits how their differences grow. Synthetic windows (two poses, 20 s
+still, 10 s moves, 100 Hz, 40 min) with a known accelerometer bias process: a random walk is
+recovered within the spread of its estimate; a ~100 s Gauss-Markov instability (MEMS), whose
+differences saturate, still shows as a walk; white noise alone shows none (the estimate is
+t > 3 tested, so a false detection has probability ~1e-3 per group).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+
+from imu_calib_ros.core.estimator.config import EstimatorConfig
+from imu_calib_ros.core.estimator.run_ledger import RunLedger
+from imu_calib_ros.core.fixture import load_fixture
+from imu_calib_ros.core.types import ImuBatch, JointBatch
+
+RATE_HZ = 100.0
+N_A = 1.5e-3  # accelerometer white noise [m/s^2/sqrt(Hz)] (consumer MEMS)
+N_G = 3e-4  # gyro [rad/s/sqrt(Hz)]
+
+
+@dataclass
+class _Est:
+    """What the ledger reads of an estimator (a running filter with known white noise)."""
+
+    fixture: Any
+    config: EstimatorConfig
+    is_running: bool = False
+    raised: tuple[float, float] | None = None
+
+    def assumed_noise(self) -> tuple[float, float, float, float]:
+        return N_G, N_A, 0.0, 0.0
+
+    def raise_bias_walk(self, q_g: float, q_a: float) -> bool:
+        self.raised = (q_g, q_a)
+        return True
+
+
+def _run(bias: np.ndarray, seed: int) -> RunLedger:
+    fx = load_fixture('three_axis')
+    est = _Est(fx, EstimatorConfig())
+    led = RunLedger(est)
+    rng = np.random.default_rng(seed)
+    n = len(bias)
+    t = (np.arange(n) * 1e9 / RATE_HZ).astype(np.int64) + 10**18
+    ts = (t - t[0]) * 1e-9
+    # two poses, 20 s still then a 10 s move, over and over
+    phase = ts % 60.0
+    target = np.where(phase < 30.0, 0.0, 1.0)
+    ramp = np.clip((phase % 30.0 - 20.0) / 10.0, 0.0, 1.0)
+    s = np.where(phase < 30.0, ramp, 1.0 - ramp)  # 0 at pose A, 1 at pose B
+    del target
+    q = np.column_stack([s * 0.5, s * 1.0, np.zeros(n)])
+    f = np.column_stack([np.zeros(n), np.zeros(n), np.full(n, 9.8)]) + bias[:, None] \
+        + rng.normal(0.0, N_A * np.sqrt(RATE_HZ), (n, 3))
+    w = rng.normal(0.0, N_G * np.sqrt(RATE_HZ), (n, 3))
+    for k in range(0, n, 6000):
+        sl = slice(k, k + 6000)
+        led.joints(JointBatch(t[sl][::2], tuple(fx.joint_names), q[sl][::2]))
+        led.imu(ImuBatch(t[sl], w[sl], f[sl]))
+    return led
+
+
+def test_a_random_walk_is_measured() -> None:
+    rng = np.random.default_rng(1)
+    n = int(2400 * RATE_HZ)
+    q_true = (3e-5) ** 2  # (m/s^2)^2/s: 3 ug/sqrt(s)
+    walk = np.cumsum(rng.normal(0.0, np.sqrt(q_true / RATE_HZ), n))
+    q_g, q_a, pairs = _run(walk, 2).bias_walk()
+    assert pairs > 100
+    assert q_g == 0.0  # the gyros had white noise only
+    assert q_true / 2.5 < q_a < q_true * 2.5, (q_a, q_true)
+
+
+def test_a_gauss_markov_instability_shows_as_a_walk() -> None:
+    rng = np.random.default_rng(3)
+    n = int(2400 * RATE_HZ)
+    sigma, tau = 100e-6 * 9.8, 100.0
+    a = np.exp(-1.0 / (RATE_HZ * tau))
+    e = rng.normal(0.0, sigma * np.sqrt(1 - a * a), n)
+    gm = np.zeros(n)
+    for k in range(1, n):
+        gm[k] = a * gm[k - 1] + e[k]
+    _, q_a, _ = _run(gm, 4).bias_walk()
+    # no longer than its correlation time the GM grows like a walk of 2 sigma^2 / tau
+    assert 0.05 * 2 * sigma ** 2 / tau < q_a < 2 * 2 * sigma ** 2 / tau, q_a
+
+
+@pytest.mark.parametrize('seed', [5, 6, 7])
+def test_white_noise_alone_is_no_walk(seed: int) -> None:
+    n = int(2400 * RATE_HZ)
+    q_g, q_a, _ = _run(np.zeros(n), seed).bias_walk()
+    assert q_g == 0.0 and q_a == 0.0
+
+
+def test_the_walk_is_handed_to_a_running_estimator_only() -> None:
+    rng = np.random.default_rng(8)
+    n = int(600 * RATE_HZ)
+    led = _run(np.cumsum(rng.normal(0.0, 1e-4 / np.sqrt(RATE_HZ), n)), 9)
+    assert led.est.raised is None  # no filter running: nothing handed over
+    led.est.is_running = True
+    led._walk_checked = None  # the next check is due
+    led._check_walk()
+    assert led.est.raised is not None and led.est.raised[1] > 0
