@@ -252,8 +252,8 @@ class RunLedger:
         share them). A Gauss-Markov instability of ~100 s (MEMS) grows over the first pairs
         and then saturates, which a straight line through all pairs does not show; so also
         ``q = sum y / sum |t_j - t_i|`` over the pairs at most :data:`WALK_SHORT_S` apart
-        (the walk that explains their scatter), counted when ``mean y`` stands out (> 3
-        standard errors); the larger of the two. Plans that never return to a pose give 0."""
+        (the walk that explains their scatter), counted when ``mean y`` stands out (> 2
+        standard errors: a false detection only widens Q a little); the larger of the two. Plans that never return to a pose give 0."""
         wins = self.windows()
         if len(wins) < 4 or self._dt_ns <= 0:
             return 0.0, 0.0, 0
@@ -283,7 +283,7 @@ class RunLedger:
                 ys = y[short]
                 used_s = len(set(i[short].tolist()) | set(j[short].tolist()))
                 se_s = float(np.std(ys)) / math.sqrt(max(used_s, 1))
-                if float(np.mean(ys)) > 3 * se_s:
+                if float(np.mean(ys)) > 2 * se_s:
                     q_short = float(ys.sum() / X[short, 1].sum())
             out.append(max(q_line, q_short))
         return out[0], out[1], int(len(i))
