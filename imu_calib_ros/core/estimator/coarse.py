@@ -210,7 +210,7 @@ def _rate_nominal(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: f
     """Joint angles, the nominal IMU frame's inertial rate in that frame, and |rate|."""
     q = spline(t_s)
     qd = _joint_rates(spline, t_s, tol_rad)
-    axes = fixture.joint_axes_enu(q)  # (N, n, 3)
+    axes = fixture.angular_axes_enu(q)  # (N, n, 3); prismatic joints' rows zero
     w_enu = np.einsum('nj,njk->nk', qd, axes)
     R = fixture.R_enu_imu(q)
     w_nom = np.einsum('nki,nk->ni', R, w_enu + fixture.site.omega_ie_enu)
@@ -223,7 +223,7 @@ def measure_latency(fixture: Any, spline: CubicSpline, t_s: FloatArray, w: Float
     wm = np.linalg.norm(w - bias, axis=1)
     # the joint axes at the unshifted instants: over +-60 ms they turn by a few degrees at
     # most, which changes |sum u_i qd_i| only where two joints move at once (second order)
-    axes = fixture.joint_axes_enu(spline(t_s))
+    axes = fixture.angular_axes_enu(spline(t_s))
 
     def cost(s: float) -> float:
         qd = _joint_rates(spline, t_s + s, tol_rad)
