@@ -604,3 +604,28 @@ def load_fixture(name_or_path: str, urdf: Any = None) -> Fixture:
                         or not shipped_urdf.is_file()) else str(shipped_urdf)
         return fixture_from_urdf(path, urdf if urdf is not None else UrdfOptions())
     return Fixture.from_yaml(resolve_config_file(name, 'fixtures'))
+
+
+def perturbed_chain(fixture: Fixture, rng: np.random.Generator, joint_offset_sigma_rad: float,
+                    link_sigma_m: float) -> tuple[Fixture, FloatArray, FloatArray]:
+    """A chain with the errors of an uncalibrated arm (issue 15 item 4), for simulations: each
+    revolute joint's zero is off by ``N(0, joint_offset_sigma_rad)`` (its origin turned about
+    its axis: the encoder reads ``q``, the joint is at ``q + dq``) and each joint origin by
+    ``N(0, link_sigma_m)`` per coordinate (link lengths and offsets). Returns the true chain,
+    the zero offsets (n,) and the origin errors (n, 3)."""
+    from dataclasses import replace
+    joints = []
+    offsets = np.zeros(fixture.n_joints)
+    dxyz = np.zeros((fixture.n_joints, 3))
+    for i, j in enumerate(fixture.joints):
+        xyz = np.zeros(3) if j.origin_xyz_m is None else np.array(j.origin_xyz_m)
+        R = np.eye(3) if j.origin_R is None else np.array(j.origin_R)
+        if j.revolute:
+            offsets[i] = rng.normal(0.0, joint_offset_sigma_rad)
+            R = R @ rot_axis_angle(j.axis, offsets[i])
+        if fixture.concurrent:  # a turntable keeps its axes through one point
+            dxyz[i] = 0.0
+        else:
+            dxyz[i] = rng.normal(0.0, link_sigma_m, 3)
+        joints.append(replace(j, origin_xyz_m=xyz + dxyz[i], origin_R=R))
+    return fixture.with_joints(tuple(joints)), offsets, dxyz
