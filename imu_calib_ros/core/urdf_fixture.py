@@ -22,6 +22,7 @@ on the command line, node parameters), which take precedence.
 """
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import os
@@ -154,6 +155,10 @@ def fixture_from_urdf(urdf: str | os.PathLike[str], opts: UrdfOptions) -> Fixtur
             from None
     site, base_rpy_deg = _site(root, opts, source)
     links = {lk.name for lk in model.robot.links}
+    # without names, the conventional ones if the URDF has them (REP-105 base_link, imu_link)
+    opts = dataclasses.replace(
+        opts, base_link=opts.base_link or ('base_link' if 'base_link' in links else ''),
+        imu_link=opts.imu_link or ('imu_link' if 'imu_link' in links else ''))
     for key, name in (('base_link', opts.base_link), ('imu_link', opts.imu_link)):
         if not name:
             raise ConfigError(f'a URDF fixture needs --{key.replace("_", "-")} (node: '
