@@ -21,6 +21,8 @@ REFUSED = {
     ('savage_2axis', 'kozlov_oscillation'): 'vertical',
     ('savage_2axis', 'srt_then_kozlov'): 'vertical',
     ('savage_2axis', 'srt_kozlov_bias'): 'vertical',
+    ('three_axis', 'arm6_excitation'): 'no joint',  # generated for config/fixtures/arm6.urdf
+    ('savage_2axis', 'arm6_excitation'): 'no joint',
 }
 
 

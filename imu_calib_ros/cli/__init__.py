@@ -14,6 +14,7 @@ import importlib
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 from ..core.errors import ImuCalibError, InputError
 
@@ -72,6 +73,27 @@ def build_parser() -> argparse.ArgumentParser:
     for p in sub.choices.values():
         p.epilog = p.epilog or CONTRACT_NOTE
     return parser
+
+
+def add_urdf_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of a URDF fixture (issue 15: ``--fixture robot.urdf --base-link B --imu-link L``)."""
+    g = parser.add_argument_group('URDF fixture (a robot arm or any chain as the turntable)')
+    g.add_argument('--base-link', default='', metavar='B',
+                   help='with a .urdf fixture: the link fixed to the earth (chain start)')
+    g.add_argument('--imu-link', default='', metavar='L',
+                   help='with a .urdf fixture: the link the IMU frame is (chain end)')
+    g.add_argument('--site-latitude-deg', type=float, default=None, metavar='DEG',
+                   help='site latitude (overrides the URDF\'s <imu_calib_site>)')
+    g.add_argument('--site-height-m', type=float, default=None, metavar='M',
+                   help='site ellipsoidal height (overrides the URDF\'s <imu_calib_site>)')
+
+
+def urdf_options(args: Any) -> Any:
+    """The :class:`~..core.urdf_fixture.UrdfOptions` of the parsed arguments."""
+    from ..core.urdf_fixture import UrdfOptions
+    return UrdfOptions(getattr(args, 'base_link', ''), getattr(args, 'imu_link', ''),
+                       getattr(args, 'site_latitude_deg', None),
+                       getattr(args, 'site_height_m', None))
 
 
 def check_output_file(out: Path, example: str) -> None:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.errors import InputError, SelfCheckError
 from ..msg_adapters import DEFAULT_REORDER_WINDOW_S
-from . import add_topic_arguments, check_output_file
+from . import add_topic_arguments, add_urdf_arguments, check_output_file, urdf_options
 
 if TYPE_CHECKING:
     from ..core.reorder import ReorderStats
@@ -35,7 +35,9 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser('replay', help='calibrate from a recorded bag (CONTRACT 5)',
                               description=__doc__.split('\n\n')[0] if __doc__ else None)
     p.add_argument('bag', metavar='BAG', help='bag directory or .mcap file')
-    p.add_argument('--fixture', required=True, metavar='F', help='fixture name or YAML path')
+    p.add_argument('--fixture', required=True, metavar='F',
+                   help='fixture name, YAML path (CONTRACT 2) or .urdf (with --base-link, --imu-link)')
+    add_urdf_arguments(p)
     p.add_argument('--output', '-o', required=True, metavar='CALIB.yaml',
                    help='calibration file to write (CONTRACT 4)')
     add_topic_arguments(p)
@@ -114,7 +116,7 @@ def run(args: Any) -> int:
     if args.iterations < 1:
         raise InputError(f'--iterations must be >= 1, got {args.iterations}')
     check_output_file(out, 'calib.yaml')
-    fixture = load_fixture(args.fixture)
+    fixture = load_fixture(args.fixture, urdf_options(args))
     grade = load_grade(args.imu) if args.imu else None
     if not Path(args.bag).exists():
         raise InputError(f'bag {args.bag} does not exist')

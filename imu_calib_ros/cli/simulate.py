@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import ConfigError, InputError
-from . import add_topic_arguments
+from . import add_topic_arguments, add_urdf_arguments, urdf_options
 
 IMU_RATE_MAX_HZ = 100_000.0
 
@@ -35,7 +35,9 @@ def register(subparsers: Any) -> None:
         'simulate', help='simulate a calibration run into a ROS 2 bag and truth.yaml',
         description=__doc__.split('\n\n')[0] if __doc__ else None)
     p.add_argument('--fixture', required=True, metavar='F',
-                   help='fixture: shipped name or YAML path (CONTRACT 2)')
+                   help='fixture: shipped name or YAML path (CONTRACT 2), or a .urdf with '
+                   '--base-link and --imu-link')
+    add_urdf_arguments(p)
     p.add_argument('--plan', required=True, metavar='P',
                    help='motion plan: shipped name or YAML path')
     p.add_argument('--imu', required=True, metavar='GRADE|FILE',
@@ -143,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.sensor_model import SensorErrors
     from ..msg_adapters.bag import remove_bag, write_bag
 
-    fixture = load_fixture(args.fixture)
+    fixture = load_fixture(args.fixture, urdf_options(args))
     plan = load_plan(args.plan)
     grade = load_grade(args.imu)
     profile = build_profile(plan, fixture)

@@ -1,4 +1,4 @@
-"""The fixture (turntable) of CONTRACT section 2 and the exact kinematics of its joint chain.
+"""The fixture (turntable or robot arm) of CONTRACT section 2 and the exact kinematics of its chain.
 
 ``R_enu_imu = Rot(a_1, q_1) ... Rot(a_n, q_n) R_rpy``: joint ``i`` turns about its axis
 ``a_i``, given in its parent frame (the first joint's parent is the site's ENU frame); the
@@ -16,6 +16,27 @@ and ``u_i = R_{i-1} a_i`` joint ``i``'s axis in ENU::
     p = R_n xyz,  v = omega_eb x p,  a = d/dt omega_eb x p + omega_eb x (omega_eb x p)
     f_imu = R_imu_enu (a + 2 omega_ie x v - g_enu)
 
+General chains (issue 15: a robot arm from its URDF, :mod:`.urdf_fixture`): joint ``i`` may
+have a fixed origin ``(xyz_i, R_o,i)`` in its parent frame (URDF ``<origin>``) and may be
+prismatic. With ``O_i`` the origin of joint frame ``i`` in ENU (``O_0 = 0``, the base),
+``R'_i = R_{i-1} R_o,i``, ``u_i = R'_i a_i`` and ``r_i = O_i - O_{i-1} = R_{i-1} xyz_i (+ u_i q_i
+for a prismatic joint)``, the outward recursion (Siciliano et al. sect. 3.1, 7.5; Featherstone,
+"Rigid body dynamics algorithms", 2008, ch. 3) is::
+
+    R_i = R'_i Rot(a_i, q_i)   (prismatic: R_i = R'_i)
+    w_i = w_{i-1} + u_i qd_i,  wd_i = wd_{i-1} + u_i qdd_i + w_{i-1} x u_i qd_i   (revolute)
+    v_O,i = v_O,i-1 + w_{i-1} x r_i (+ u_i qd_i)
+    a_O,i = a_O,i-1 + wd_{i-1} x r_i + w_{i-1} x (w_{i-1} x r_i)
+            (+ 2 w_{i-1} x u_i qd_i + u_i qdd_i)                                   (prismatic)
+    p = O_n + R_n xyz,  v = v_O,n + w_n x (R_n xyz),  a = a_O,n + wd_n x r + w_n x (w_n x r)
+
+The estimator's velocity measurement compares the navigated velocity with the *anchor*'s plus
+``R_enu_imu (omega_eb x rho)``: on a turntable (CONTRACT 2 without origins: every ``O_i = 0``,
+the formulas above reduce to the turntable's, bit for bit, the general terms skipped) the
+anchor is the axes' common point and ``rho`` the IMU point from it; on a general chain the
+anchor is the nominal IMU point ``p(q)`` (from the encoders) and ``rho`` only the mounting's
+offset from it (:attr:`Fixture.lever_arm_imu_m`).
+
 ``omega_dot_ib_imu`` is the time derivative of the components of ``omega_ib_imu``
 (which equals the inertial derivative expressed in the IMU frame). In ``f`` the term
 ``omega_ie x (omega_ie x p)`` (< 1e-11 m/s^2 for p ~ 1 mm) is neglected; normal gravity
@@ -25,6 +46,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,18 +72,62 @@ def _frozen(a: ArrayLike) -> FloatArray:
     return out
 
 
+JOINT_TYPES = ('revolute', 'continuous', 'prismatic')
+
+
 @dataclass(frozen=True, eq=False)
 class Joint:
-    """One revolute joint: a name and a unit axis in its parent frame."""
+    """One joint: a name, a unit axis in its own frame and, for general chains, a fixed origin.
+
+    ``origin_xyz_m`` and ``origin_R`` (URDF ``<origin>``: the joint frame at ``q = 0`` in its
+    parent frame; ``None``: at the parent's origin, unrotated, as in CONTRACT 2), ``kind``
+    one of :data:`JOINT_TYPES` (a prismatic joint moves along ``axis`` by ``q`` metres), and
+    the URDF limits (``None``: unlimited): ``lower``/``upper`` [rad or m], ``velocity``
+    [rad/s or m/s], ``effort`` [N m or N].
+    """
 
     name: str
     axis: FloatArray  # (3,), unit
+    kind: str = 'revolute'
+    origin_xyz_m: FloatArray | None = None
+    origin_R: FloatArray | None = None
+    lower: float | None = None
+    upper: float | None = None
+    velocity: float | None = None
+    effort: float | None = None
 
     def __post_init__(self) -> None:
         axis = np.asarray(self.axis, dtype=float)
         if axis.shape != (3,) or abs(np.linalg.norm(axis) - 1.0) > 1e-9:
             raise ValueError(f'joint {self.name!r}: axis must be a unit 3-vector, got {axis}')
         object.__setattr__(self, 'axis', _frozen(axis))
+        if self.kind not in JOINT_TYPES:
+            raise ValueError(f'joint {self.name!r}: type {self.kind!r} not in {JOINT_TYPES}')
+        if self.origin_xyz_m is not None:
+            xyz = np.asarray(self.origin_xyz_m, dtype=float)
+            if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
+                raise ValueError(f'joint {self.name!r}: origin_xyz_m must be a finite 3-vector')
+            object.__setattr__(self, 'origin_xyz_m', None if not np.any(xyz) else _frozen(xyz))
+        if self.origin_R is not None:
+            R = np.asarray(self.origin_R, dtype=float)
+            if R.shape != (3, 3) or np.abs(R @ R.T - np.eye(3)).max() > 1e-9 \
+                    or np.linalg.det(R) < 0:
+                raise ValueError(f'joint {self.name!r}: origin_R must be a rotation matrix')
+            object.__setattr__(self, 'origin_R', None if np.array_equal(R, np.eye(3))
+                               else _frozen(R))
+        if self.lower is not None and self.upper is not None and self.lower > self.upper:
+            raise ValueError(f'joint {self.name!r}: lower limit {self.lower} > upper '
+                             f'{self.upper}')
+
+    @property
+    def revolute(self) -> bool:
+        """True for revolute and continuous joints (they turn the IMU)."""
+        return self.kind != 'prismatic'
+
+    @property
+    def has_limits(self) -> bool:
+        """True if the joint has a position limit."""
+        return self.lower is not None or self.upper is not None
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,6 +210,28 @@ class Fixture:
         """Nominal IMU attitude in the innermost joint frame, ``R_rpy`` (3, 3)."""
         return self._R_joint_imu  # type: ignore[attr-defined,no-any-return]
 
+    @property
+    def concurrent(self) -> bool:
+        """True if every axis passes through the base origin (a turntable, CONTRACT 2 without
+        origins): no joint has an origin offset and none is prismatic."""
+        return all(j.origin_xyz_m is None and j.revolute for j in self.joints)
+
+    @property
+    def lever_arm_imu_m(self) -> FloatArray:
+        """Nominal IMU reference point from the anchor, IMU frame: the nominal value of the
+        estimator's lever-arm state. A turntable: from the axes' common point; a general
+        chain: zero (its anchor is the nominal IMU point itself, so the state is only the
+        mounting's offset, millimetres: the gyro errors times a lever of decimetres would
+        otherwise corrupt the velocity measurement)."""
+        if self.concurrent:
+            return self.R_joint_imu.T @ self.imu_xyz_m  # type: ignore[no-any-return]
+        return np.zeros(3)
+
+    @property
+    def revolute_mask(self) -> FloatArray:
+        """(n,) 1.0 for joints that turn the IMU, 0.0 for prismatic ones."""
+        return np.array([1.0 if j.revolute else 0.0 for j in self.joints])
+
     def joint_index(self, name: str) -> int:
         """Index of the joint called ``name`` (``KeyError`` naming the known joints)."""
         try:
@@ -161,6 +249,11 @@ class Fixture:
         return Fixture(self.site, self.joints, matrix_to_rpy(R_true),
                        self.imu_xyz_m + np.asarray(dxyz_m, dtype=float), self.source)
 
+    def with_joints(self, joints: 'tuple[Joint, ...]') -> 'Fixture':
+        """The same fixture (site, IMU mounting) with another joint chain (e.g. an arm with
+        link-length and zero-offset errors, :func:`perturbed_chain`)."""
+        return Fixture(self.site, tuple(joints), self.imu_rpy_rad, self.imu_xyz_m, self.source)
+
     # ------------------------------------------------------------------------- kinematics
     def _check_q(self, q: ArrayLike, what: str = 'q') -> FloatArray:
         q = np.asarray(q, dtype=float)
@@ -173,9 +266,31 @@ class Fixture:
         R = np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3))
         axes = []
         for i, joint in enumerate(self.joints):
+            if joint.origin_R is not None:
+                R = R @ joint.origin_R
             axes.append(R @ joint.axis)
-            R = R @ rot_axis_angle(joint.axis, q[..., i])
+            if joint.revolute:
+                R = R @ rot_axis_angle(joint.axis, q[..., i])
         return np.array(R), np.stack(axes, axis=-2)
+
+    def _origins(self, q: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``R_n``, axes ``u`` (..., n, 3) and joint-frame origins ``O`` (..., n, 3) in ENU."""
+        R = np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3))
+        O = np.zeros(q.shape[:-1] + (3,))
+        axes, origins = [], []
+        for i, joint in enumerate(self.joints):
+            if joint.origin_xyz_m is not None:
+                O = O + R @ joint.origin_xyz_m
+            if joint.origin_R is not None:
+                R = R @ joint.origin_R
+            u = R @ joint.axis
+            axes.append(u)
+            if joint.revolute:
+                R = R @ rot_axis_angle(joint.axis, q[..., i])
+            else:
+                O = O + u * q[..., i, None]
+            origins.append(O)
+        return np.array(R), np.stack(axes, axis=-2), np.stack(origins, axis=-2)
 
     def R_enu_joint(self, q: ArrayLike) -> FloatArray:
         """Attitude of the innermost joint frame, ``Rot(a_1, q_1) ... Rot(a_n, q_n)``."""
@@ -186,8 +301,65 @@ class Fixture:
         return self.R_enu_joint(q) @ self.R_joint_imu
 
     def p_enu_m(self, q: ArrayLike) -> FloatArray:
-        """IMU reference point in ENU for joint angles ``q`` (..., n) -> (..., 3)."""
-        return self.R_enu_joint(q) @ self.imu_xyz_m
+        """IMU reference point in ENU for joint angles ``q`` (..., n) -> (..., 3), from the
+        base origin (a turntable: the axes' common point)."""
+        q = self._check_q(q)
+        if self.concurrent:
+            return self.R_enu_joint(q) @ self.imu_xyz_m
+        R_n, _, O = self._origins(q)
+        return O[..., -1, :] + R_n @ self.imu_xyz_m  # type: ignore[no-any-return]
+
+    def anchor_enu_m(self, q: ArrayLike) -> FloatArray:
+        """The anchor in ENU, (..., 3): a turntable's axes' common point (zero); a general
+        chain's nominal IMU reference point (:attr:`lever_arm_imu_m`)."""
+        q = self._check_q(q)
+        if self.concurrent:
+            return np.zeros(q.shape[:-1] + (3,))
+        return self.p_enu_m(q)
+
+    def anchor_velocity_enu_m_s(self, q: ArrayLike, qd: ArrayLike) -> FloatArray:
+        """Velocity of the anchor in ENU (relative to the earth), (..., 3); zero on a turntable.
+
+        The estimator's velocity measurement is this plus ``R_enu_imu (omega_eb x rho)``,
+        ``rho`` the lever arm from the anchor (:func:`.estimator.measurements.zero_velocity`).
+        """
+        q = self._check_q(q)
+        qd = self._check_q(qd, 'qd')
+        if self.concurrent:
+            return np.zeros(q.shape[:-1] + (3,))
+        R_n, w, _, _, v_O, _ = self._motion(q, qd, np.zeros_like(qd))
+        return v_O + np.cross(w, R_n @ self.imu_xyz_m)  # type: ignore[no-any-return]
+
+    def angular_axes_enu(self, q: ArrayLike) -> FloatArray:
+        """Joint axes in ENU with prismatic joints' rows zero: ``omega_eb = sum_i u_i qd_i``
+        over this, (..., n, 3)."""
+        u = self.joint_axes_enu(q)
+        if self.concurrent:
+            return u
+        return u * self.revolute_mask[:, None]  # type: ignore[no-any-return]
+
+    def check_limits(self, q: ArrayLike, qd: ArrayLike | None = None,
+                     tol: float = 1e-9) -> str | None:
+        """``None`` if ``q`` (..., n) (and ``qd``) stay within every joint's URDF limits, else
+        one line naming the first joint and the limit it violates, with the value."""
+        q = np.asarray(q, dtype=float).reshape(-1, self.n_joints)
+        unit = ('m', 'm/s')
+        for i, j in enumerate(self.joints):
+            u = unit if not j.revolute else ('deg', 'deg/s')
+            k = 1.0 if not j.revolute else math.degrees(1.0)
+            lo, hi = float(q[:, i].min()), float(q[:, i].max())
+            if j.lower is not None and lo < j.lower - tol:
+                return (f'joint {j.name!r} would reach {lo * k:.4g} {u[0]}, below its lower '
+                        f'limit {j.lower * k:.4g} {u[0]}')
+            if j.upper is not None and hi > j.upper + tol:
+                return (f'joint {j.name!r} would reach {hi * k:.4g} {u[0]}, above its upper '
+                        f'limit {j.upper * k:.4g} {u[0]}')
+            if qd is not None and j.velocity is not None:
+                vmax = float(np.abs(np.asarray(qd, float).reshape(-1, self.n_joints)[:, i]).max())
+                if vmax > j.velocity * (1 + 1e-9) + tol:
+                    return (f'joint {j.name!r} would move at {vmax * k:.4g} {u[1]}, above its '
+                            f'velocity limit {j.velocity * k:.4g} {u[1]}')
+        return None
 
     def joint_axes_enu(self, q: ArrayLike) -> FloatArray:
         """Each joint's axis in ENU, ``u_i = R_{i-1} a_i``, shape (..., n, 3)."""
@@ -215,19 +387,27 @@ class Fixture:
         q = self._check_q(q)
         qd = self._check_q(qd, 'qd')
         qdd = self._check_q(qdd, 'qdd')
-        R_n, u = self._chain(q)
-        w = np.zeros(q.shape[:-1] + (3,))
-        wdot = np.zeros_like(w)
-        for i in range(self.n_joints):
-            ui = u[..., i, :]
-            wdot = wdot + ui * qdd[..., i, None] + np.cross(w, ui) * qd[..., i, None]
-            w = w + ui * qd[..., i, None]
+        if self.concurrent:
+            R_n, u = self._chain(q)
+            w = np.zeros(q.shape[:-1] + (3,))
+            wdot = np.zeros_like(w)
+            for i in range(self.n_joints):
+                ui = u[..., i, :]
+                wdot = wdot + ui * qdd[..., i, None] + np.cross(w, ui) * qd[..., i, None]
+                w = w + ui * qd[..., i, None]
+            p = R_n @ self.imu_xyz_m
+            v = np.cross(w, p)
+            a = np.cross(wdot, p) + np.cross(w, v)
+        else:
+            R_n, w, wdot, O_n, v_O, a_O = self._motion(q, qd, qdd)
+            r = R_n @ self.imu_xyz_m
+            p = O_n + r
+            w_r = np.cross(w, r)
+            v = v_O + w_r
+            a = a_O + np.cross(wdot, r) + np.cross(w, w_r)
         R = R_n @ self.R_joint_imu
         R_T = np.swapaxes(R, -1, -2)
         omega_ie = self.site.omega_ie_enu
-        p = R_n @ self.imu_xyz_m
-        v = np.cross(w, p)
-        a = np.cross(wdot, p) + np.cross(w, v)
         f_enu = a + 2.0 * np.cross(omega_ie, v) - self.site.g_enu
 
         def to_imu(x: FloatArray) -> FloatArray:
@@ -242,12 +422,58 @@ class Fixture:
             omega_eb_enu_rad_s=w,
         )
 
+    def _motion(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> tuple[
+            FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The general outward recursion (module docstring): ``R_n``, ``w_n``, ``wd_n``
+        (ENU, relative to the earth) and the anchor's position, velocity, acceleration."""
+        R = np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3))
+        shape = q.shape[:-1] + (3,)
+        O, v, a = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        w, wd = np.zeros(shape), np.zeros(shape)
+        for i, joint in enumerate(self.joints):
+            r = np.zeros(shape) if joint.origin_xyz_m is None else R @ joint.origin_xyz_m
+            if joint.origin_R is not None:
+                R = R @ joint.origin_R
+            u = R @ joint.axis
+            qi, qdi, qddi = q[..., i, None], qd[..., i, None], qdd[..., i, None]
+            if not joint.revolute:
+                r = r + u * qi
+            w_r = np.cross(w, r)
+            O = O + r
+            v = v + w_r
+            a = a + np.cross(wd, r) + np.cross(w, w_r)
+            if joint.revolute:
+                wd = wd + u * qddi + np.cross(w, u) * qdi
+                w = w + u * qdi
+                R = R @ rot_axis_angle(joint.axis, q[..., i])
+            else:
+                v = v + u * qdi
+                a = a + 2.0 * np.cross(w, u) * qdi + u * qddi
+        return np.array(R), w, wd, O, v, a
+
     # ------------------------------------------------------------------------------- files
     def to_dict(self) -> dict[str, Any]:
-        """The CONTRACT section 2 mapping (degrees in the file)."""
+        """The CONTRACT section 2 mapping (degrees in the file); a joint's optional keys
+        (``type``, ``origin_xyz_m``, ``origin_rpy_deg``, ``limits``) only where they are set."""
+        joints = []
+        for j in self.joints:
+            d: dict[str, Any] = {'name': j.name, 'axis': [float(x) for x in j.axis]}
+            if j.kind != 'revolute':
+                d['type'] = j.kind
+            if j.origin_xyz_m is not None:
+                d['origin_xyz_m'] = [float(x) for x in j.origin_xyz_m]
+            if j.origin_R is not None:
+                with warnings.catch_warnings():  # gimbal lock: any valid rpy will do
+                    warnings.simplefilter('ignore', UserWarning)
+                    rpy = matrix_to_rpy(j.origin_R)
+                d['origin_rpy_deg'] = [math.degrees(float(x)) for x in rpy]
+            lim = {k: float(getattr(j, k)) for k in _LIMIT_KEYS if getattr(j, k) is not None}
+            if lim:
+                d['limits'] = lim
+            joints.append(d)
         return {
             'site': self.site.to_dict(),
-            'joints': [{'name': j.name, 'axis': [float(x) for x in j.axis]} for j in self.joints],
+            'joints': joints,
             'imu': {'rpy_deg': [math.degrees(float(x)) for x in self.imu_rpy_rad],
                     'xyz_m': [float(x) for x in self.imu_xyz_m]},
         }
@@ -281,7 +507,8 @@ class Fixture:
         for i, rj in enumerate(raw_joints):
             key = f'joints[{i}]'
             rj = require_mapping(rj, source, key)
-            _check_keys(rj, ('name', 'axis'), ('name', 'axis'), source, key)
+            _check_keys(rj, ('name', 'axis', *_OPTIONAL_JOINT_KEYS), ('name', 'axis'), source,
+                        key)
             name = rj['name']
             if not isinstance(name, str) or not name.strip():
                 raise ConfigError(f'expected a non-empty string, got {name!r}', source,
@@ -296,17 +523,54 @@ class Fixture:
                 raise ConfigError(f'axis is not a unit vector (norm {norm:.6g})', source,
                                   f'{key}.axis')
             axis = axis / norm
-            if joints and np.linalg.norm(np.cross(joints[-1].axis, axis)) < \
-                    PARALLEL_AXES_TOLERANCE:
-                raise ConfigError(f'axis is parallel to the axis of joint {joints[-1].name!r} '
-                                  '(consecutive joints must turn about different axes)',
-                                  source, f'{key}.axis')
-            joints.append(Joint(name, axis))
+            joints.append(_joint_options(rj, name, axis, source, key))
+        if all(j.origin_xyz_m is None and j.revolute for j in joints):
+            # a turntable: the axes meet in one point, so two parallel axes in a row turn the
+            # IMU about one line (a degenerate chain); an arm's parallel axes are offset
+            for i in range(1, len(joints)):
+                if np.linalg.norm(np.cross(joints[i - 1].axis, joints[i].axis)) < \
+                        PARALLEL_AXES_TOLERANCE:
+                    raise ConfigError(f'axis is parallel to the axis of joint '
+                                      f'{joints[i - 1].name!r} (consecutive joints must turn '
+                                      'about different axes)', source, f'joints[{i}].axis')
         imu = require_mapping(d['imu'], source, 'imu')
         _check_keys(imu, ('rpy_deg', 'xyz_m'), ('rpy_deg', 'xyz_m'), source, 'imu')
         rpy = np.radians(vector(imu['rpy_deg'], 3, source, 'imu.rpy_deg'))
         xyz = np.array(vector(imu['xyz_m'], 3, source, 'imu.xyz_m'))
         return cls(site, tuple(joints), rpy, xyz, source)
+
+
+_LIMIT_KEYS = ('lower', 'upper', 'velocity', 'effort')
+_OPTIONAL_JOINT_KEYS = ('type', 'origin_xyz_m', 'origin_rpy_deg', 'limits')
+
+
+def _joint_options(rj: Any, name: str, axis: FloatArray, source: str | None,
+                   key: str) -> Joint:
+    """A joint with the optional keys of a general chain (issue 15): ``type`` (revolute,
+    continuous, prismatic), ``origin_xyz_m`` and ``origin_rpy_deg`` (the joint frame in its
+    parent frame at q = 0, URDF ``<origin>``), ``limits`` (lower/upper [rad or m], velocity,
+    effort; URDF ``<limit>``)."""
+    kind = rj.get('type', 'revolute')
+    if kind not in JOINT_TYPES:
+        raise ConfigError(f'unknown joint type {kind!r} (known: {", ".join(JOINT_TYPES)})',
+                          source, f'{key}.type')
+    xyz = (None if 'origin_xyz_m' not in rj
+           else np.array(vector(rj['origin_xyz_m'], 3, source, f'{key}.origin_xyz_m')))
+    R = (None if 'origin_rpy_deg' not in rj else rpy_to_matrix(np.radians(
+        vector(rj['origin_rpy_deg'], 3, source, f'{key}.origin_rpy_deg'))))
+    lim: dict[str, float] = {}
+    if 'limits' in rj:
+        ld = require_mapping(rj['limits'], source, f'{key}.limits')
+        _check_keys(ld, _LIMIT_KEYS, (), source, f'{key}.limits')
+        for k in _LIMIT_KEYS:
+            if k in ld:
+                lim[k] = vector([ld[k]], 1, source, f'{key}.limits.{k}')[0]
+        for k in ('velocity', 'effort'):
+            if k in lim and lim[k] <= 0:
+                raise ConfigError('must be > 0', source, f'{key}.limits.{k}')
+        if lim.get('lower', -math.inf) > lim.get('upper', math.inf):
+            raise ConfigError('lower limit above the upper limit', source, f'{key}.limits')
+    return Joint(name, axis, kind, xyz, R, **lim)
 
 
 def _check_keys(d: Any, known: tuple[str, ...], required: tuple[str, ...], source: str | None,
@@ -320,7 +584,48 @@ def _check_keys(d: Any, known: tuple[str, ...], required: tuple[str, ...], sourc
             raise ConfigError('missing required key', source, f'{prefix}.{k}' if prefix else k)
 
 
-def load_fixture(name_or_path: str) -> Fixture:
-    """Load a fixture by path or by the name of a shipped file in ``config/fixtures/``."""
-    from .config import resolve_config_file
-    return Fixture.from_yaml(resolve_config_file(name_or_path, 'fixtures'))
+def load_fixture(name_or_path: str, urdf: Any = None) -> Fixture:
+    """Load a fixture by path or by the name of a shipped file in ``config/fixtures/``.
+
+    A ``.urdf`` file (or a shipped ``NAME.urdf`` when there is no ``NAME.yaml``, or URDF XML
+    text) is read by :func:`.urdf_fixture.fixture_from_urdf` with ``urdf``, a
+    :class:`~.urdf_fixture.UrdfOptions` (base and IMU links, site overrides).
+    """
+    from pathlib import Path
+
+    from .config import resolve_config_file, share_dir
+    from .urdf_fixture import UrdfOptions, fixture_from_urdf, is_urdf
+    name = str(name_or_path)
+    shipped_urdf = share_dir() / 'config' / 'fixtures' / (
+        name if name.endswith('.urdf') else f'{name}.urdf')
+    if is_urdf(name) or (not Path(name).is_file() and shipped_urdf.is_file() and not (
+            share_dir() / 'config' / 'fixtures' / f'{name}.yaml').is_file()):
+        path = name if (name.lstrip().startswith('<') or Path(name).is_file()
+                        or not shipped_urdf.is_file()) else str(shipped_urdf)
+        return fixture_from_urdf(path, urdf if urdf is not None else UrdfOptions())
+    return Fixture.from_yaml(resolve_config_file(name, 'fixtures'))
+
+
+def perturbed_chain(fixture: Fixture, rng: np.random.Generator, joint_offset_sigma_rad: float,
+                    link_sigma_m: float) -> tuple[Fixture, FloatArray, FloatArray]:
+    """A chain with the errors of an uncalibrated arm (issue 15 item 4), for simulations: each
+    revolute joint's zero is off by ``N(0, joint_offset_sigma_rad)`` (its origin turned about
+    its axis: the encoder reads ``q``, the joint is at ``q + dq``) and each joint origin by
+    ``N(0, link_sigma_m)`` per coordinate (link lengths and offsets). Returns the true chain,
+    the zero offsets (n,) and the origin errors (n, 3)."""
+    from dataclasses import replace
+    joints = []
+    offsets = np.zeros(fixture.n_joints)
+    dxyz = np.zeros((fixture.n_joints, 3))
+    for i, j in enumerate(fixture.joints):
+        xyz = np.zeros(3) if j.origin_xyz_m is None else np.array(j.origin_xyz_m)
+        R = np.eye(3) if j.origin_R is None else np.array(j.origin_R)
+        if j.revolute:
+            offsets[i] = rng.normal(0.0, joint_offset_sigma_rad)
+            R = R @ rot_axis_angle(j.axis, offsets[i])
+        if fixture.concurrent:  # a turntable keeps its axes through one point
+            dxyz[i] = 0.0
+        else:
+            dxyz[i] = rng.normal(0.0, link_sigma_m, 3)
+        joints.append(replace(j, origin_xyz_m=xyz + dxyz[i], origin_R=R))
+    return fixture.with_joints(tuple(joints)), offsets, dxyz

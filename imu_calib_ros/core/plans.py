@@ -413,9 +413,17 @@ class _Builder:
         self.q = np.array(q0, dtype=float)
         self.pieces: list[_Piece] = []
         self.segments: list[Segment] = []
+        self.limited = any(j.has_limits or j.velocity is not None for j in fixture.joints)
+        self.where = ''
 
     # -- primitive pieces
     def _add(self, piece: _Piece, kind: str, label: str, meta: dict[str, Any]) -> None:
+        if self.limited and piece.kind != 'hold':  # a URDF chain's limits (issue 15)
+            t = np.linspace(piece.t0, piece.t1, 65)
+            q, qd, _ = piece.evaluate(t)
+            why = self.fx.check_limits(q, qd)
+            if why is not None:
+                raise PlanError(f'{self.where}: {why}')
         self.pieces.append(piece)
         self.segments.append(Segment(piece.t0, piece.t1, kind, label, meta))
         self.t = piece.t1
@@ -539,13 +547,19 @@ def build_profile(plan: Plan, fixture: Fixture,
     PlanError
         Naming the step and the reason, if the fixture cannot do a step (unknown joint, no
         joint along the requested IMU axis, no vertical joint for a vertical oscillation,
-        unreachable attitude).
+        unreachable attitude), or, on a chain with URDF limits, naming the joint and the
+        position or velocity limit the step would violate.
     """
     q0 = np.zeros(fixture.n_joints) if q_start_rad is None else np.asarray(q_start_rad, float)
     if q0.shape != (fixture.n_joints,):
         raise PlanError(f'q_start_rad must have {fixture.n_joints} values, got {q0.shape}')
     b = _Builder(fixture, q0)
+    if b.limited:
+        why = fixture.check_limits(q0)
+        if why is not None:
+            raise PlanError(f'{plan.source}: the start pose is outside the limits: {why}')
     for step in plan.steps:
+        b.where = f'{step.where} ({step.kind})'
         _build_step(b, step)
     if not b.pieces:
         raise PlanError(f'{plan.source}: the plan has no motion and no dwell')

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import bisect
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -219,14 +221,52 @@ class JointBuffer:
         return covered, interp_joints(rel, jrel, jq)
 
 
-def interp_joints(t_s: FloatArray, tj_s: FloatArray, qj: FloatArray) -> FloatArray:
+    def motion_at(self, t_ns: IntArray, still_tol_rad: float
+                  ) -> tuple[NDArray[np.bool_], FloatArray | None, FloatArray | None]:
+        """Joint positions and rates at the instants ``t_ns`` (a general chain's velocity,
+        issue 15): the cubic spline of :meth:`positions_at` and its derivative; the rate of a
+        joint that stays within ``still_tol_rad`` over the samples around an instant (+-3
+        samples) is exactly zero (encoder noise differentiated is not motion)."""
+        covered = (t_ns >= self.t_ns[0]) & (t_ns <= self.t_ns[-1])
+        if not covered.any():
+            return covered, None, None
+        t_in = t_ns[covered]
+        j0 = max(bisect.bisect_right(self.t_ns, int(t_in[0])) - 4, 0)
+        j1 = bisect.bisect_left(self.t_ns, int(t_in[-1])) + 4
+        jt = np.array(self.t_ns[j0:j1], np.int64)
+        jq = np.array(self.q_rad[j0:j1])
+        rel = (t_ns - jt[0]).astype(float) * 1e-9
+        jrel = (jt - jt[0]).astype(float) * 1e-9
+        q, qd = interp_joints(rel, jrel, jq, rates=True)
+        k = np.clip(np.searchsorted(jrel, rel), 0, len(jt) - 1)
+        lo, hi = np.clip(k - 3, 0, len(jt) - 1), np.clip(k + 3, 0, len(jt) - 1)
+        for b in range(len(t_ns)):
+            seg = jq[lo[b]:hi[b] + 1]
+            still = (seg.max(axis=0) - seg.min(axis=0)) <= still_tol_rad
+            qd[b, still] = 0.0
+        return covered, q, qd
+
+
+def interp_joints(t_s: FloatArray, tj_s: FloatArray, qj: FloatArray,
+                  rates: bool = False) -> Any:
     """Joint angles at ``t_s`` by a cubic spline through the samples (linear interpolation
     through a 20 Hz record of an accelerating move biased the gyro scale by 44-77 ppm;
     issue 11), clamped to the record's ends."""
     if len(tj_s) < 4:
-        return np.stack([np.interp(t_s, tj_s, qj[:, i]) for i in range(qj.shape[1])], axis=1)
+        q = np.stack([np.interp(t_s, tj_s, qj[:, i]) for i in range(qj.shape[1])], axis=1)
+        if not rates:
+            return q
+        qd = np.zeros_like(q)
+        if len(tj_s) >= 2:
+            k = np.clip(np.searchsorted(tj_s, t_s) - 1, 0, len(tj_s) - 2)
+            qd = (qj[k + 1] - qj[k]) / (tj_s[k + 1] - tj_s[k])[:, None]
+        return q, qd
     from scipy.interpolate import CubicSpline
-    return CubicSpline(tj_s, qj, axis=0)(np.clip(t_s, tj_s[0], tj_s[-1]))
+    spline = CubicSpline(tj_s, qj, axis=0)
+    tc = np.clip(t_s, tj_s[0], tj_s[-1])
+    if not rates:
+        return spline(tc)
+    return spline(tc), spline(tc, 1)
 
 
 def point_to_mean(w: FloatArray, f: FloatArray,

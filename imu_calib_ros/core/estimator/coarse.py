@@ -210,7 +210,7 @@ def _rate_nominal(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: f
     """Joint angles, the nominal IMU frame's inertial rate in that frame, and |rate|."""
     q = spline(t_s)
     qd = _joint_rates(spline, t_s, tol_rad)
-    axes = fixture.joint_axes_enu(q)  # (N, n, 3)
+    axes = fixture.angular_axes_enu(q)  # (N, n, 3); prismatic joints' rows zero
     w_enu = np.einsum('nj,njk->nk', qd, axes)
     R = fixture.R_enu_imu(q)
     w_nom = np.einsum('nki,nk->ni', R, w_enu + fixture.site.omega_ie_enu)
@@ -253,7 +253,7 @@ def measure_latency(fixture: Any, spline: CubicSpline, t_end_s: FloatArray, w: F
     wm = np.linalg.norm((c[i + 1] - c[i + 1 - n_win]) / T[:, None], axis=1)
     # the joint axes at the unshifted window middles: over +-60 ms they turn by a few
     # degrees at most, which changes |sum u_i dq_i| only where two joints move at once
-    axes = fixture.joint_axes_enu(spline(0.5 * (t_a + t_b)))
+    axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b)))
 
     def cost(s: float) -> float:
         dq = (spline(t_b + s) - spline(t_a + s)) / T[:, None]

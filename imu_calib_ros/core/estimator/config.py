@@ -49,6 +49,17 @@ class EstimatorConfig:
     attitude_aiding: bool = setting(False, 'attitude updates from the joint encoders + mounting states')
     attitude_sigma_rad: float = setting(1e-4, 'one-sigma noise of the encoder attitude measurement',
                                    1e-9)
+    # --- general chains (issue 15: an arm as the turntable; no effect on a turntable) --------
+    chain_joint_offset_sigma_rad: float = setting(
+        1e-3, 'one sigma of the chain\'s joint zero offsets (uncalibrated arm: ~1 mrad); bounds '
+        'their effect on the chain velocity and the encoder attitude measurements', 0.0)
+    chain_link_sigma_m: float = setting(
+        2e-3, 'one sigma of the chain\'s link-length (joint origin) errors', 0.0)
+    chain_encoder_sigma_rad: float = setting(
+        1e-5, 'one sigma of the encoder noise, for the chain velocity from the joint states', 0.0)
+    chain_error_correlation: float = setting(
+        50.0, 'updates over which one arm error stays the same (its bound per update is '
+        'multiplied by the square root of this: a systematic error is not averaged away)', 1.0)
     gate_probability: float = setting(0.99999, 'chi-square gate: reject innovations beyond this '
                                  'quantile (1 disables the gate)', 0.5, 1.0)
     block_chunks: int = setting(50, 'updates per block between feedbacks to the navigator', 1, 1000)

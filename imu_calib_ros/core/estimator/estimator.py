@@ -57,7 +57,8 @@ from .ekf import ErrorStateFilter
 from .history import EstimateHistory
 from .health import (NisWindow, bridge_gap, numerical_fault, restart_covariance,
                      rollback_covariance, snapshots, state_out_of_range, status, widen_for_gaps)
-from .measurements import (MEAS_SCALE, encoder_attitude, noise_covariance, to_filter_units,
+from .measurements import (MEAS_SCALE, chain_attitude_covariance, chain_velocity_covariance,
+                           encoder_attitude, lengthened_chains, noise_covariance, to_filter_units,
                            zero_velocity)
 from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_hint,
                     white_noise_densities, white_noise_from_window)
@@ -112,6 +113,7 @@ class CalibrationEstimator:
         self._initial = initial
         self._given_start = start
         self._joint_names = tuple(fixture.joint_names)
+        self._chain_fixtures: tuple[Any, ...] | None = None  # general chains (issue 15)
         self.reset()
 
     # ------------------------------------------------------------------ public API
@@ -150,7 +152,7 @@ class CalibrationEstimator:
         gcfg = getattr(self, 'guard_config', None) or GuardConfig()
         self.guard_config: GuardConfig = gcfg
         self._guard = InputGuard(gcfg, self.fixture.site.gravity, self._joint_names,
-                                 self.fixture.joint_axes_enu)
+                                 self.fixture.angular_axes_enu)
         self._diverged: str | None = None
         self._good: deque[Estimate] = snapshots(gcfg, cfg.block_chunks)  # healthy blocks
         self._last_good_state: Estimate | None = None
@@ -418,7 +420,8 @@ class CalibrationEstimator:
         if len(t) < need:
             return
         n_chunks = (len(t) - 1) // n
-        if self.attitude_aiding and not final and len(self._joints):
+        if (self.attitude_aiding or not self.fixture.concurrent) and not final \
+                and len(self._joints):
             # wait for joint states beyond a chunk end (unless they stopped coming)
             t_j = self._joints.t_ns[-1]
             wait_ns = int(self.config.max_pending_s * 1e9)
@@ -458,16 +461,28 @@ class CalibrationEstimator:
                               self._nominal_dt, B, self._n, lay, om)
         self.counters['gaps'] += blk.n_gaps
         # zero velocity with the lever arm, and the encoder attitude, at each chunk end
-        z_v, H_v = to_filter_units(*zero_velocity(blk.v_enu_end_m_s, blk.R_enu_imu_end,
-                                                  blk.omega_ib_end_rad_s, om, self._rho, lay),
-                                   lay.scale)
+        chain = None if self.fixture.concurrent else self._chain_motion(t[blk.ends])
+        z_v, H_v = to_filter_units(*zero_velocity(
+            blk.v_enu_end_m_s, blk.R_enu_imu_end, blk.omega_ib_end_rad_s, om, self._rho, lay,
+            None if chain is None else chain[3]), lay.scale)
         R_v = noise_covariance(cfg.velocity_sigma_m_s)
         z_a, H_a, have_att = self._encoder_attitude(t[blk.ends], blk.R_enu_imu_end)
         R_a = noise_covariance(cfg.attitude_sigma_rad)
+        if chain is not None:  # a general chain: its errors bound in the noise (issue 15)
+            R_vb = R_v[None] + chain[4] / MEAS_SCALE ** 2
+            R_ab = R_a[None] + chain[5] / MEAS_SCALE ** 2
         filt = self._filter
         q1_diag_s = np.diag(q1_s)
         for b in range(B):
             filt.predict_rows(blk.rows_s[b], q1_diag_s * blk.T_s[b])
+            if chain is not None:
+                R_v, R_a = R_vb[b], R_ab[b]
+                if not chain[0][b]:  # no joint states around this instant: no chain velocity
+                    self.counters['velocity_updates_without_joints'] = \
+                        self.counters.get('velocity_updates_without_joints', 0) + 1
+                    if have_att[b]:
+                        filt.update('attitude', z_a[b], H_a[b], R_a)  # type: ignore[index]
+                    continue
             if filt.update('velocity', z_v[b], H_v[b], R_v):
                 self._gated_run = 0
             else:
@@ -493,6 +508,35 @@ class CalibrationEstimator:
         sd = np.sqrt(np.clip(np.diag(filt.P)[6:], 0.0, None)) * lay.scale[6:]
         self.history.record(self._t_last_ns, lay.state_labels, self._state_values(), sd,
                             filt.counters, force)
+
+    def _chain_motion(self, t_ns: NDArray[np.int64]) -> tuple[
+            NDArray[np.bool_], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """A general chain (issue 15) at the chunk ends ``t_ns``: (covered, q, qd, anchor
+        velocity (B, 3), its covariance (B, 3, 3) and the encoder attitude's (B, 3, 3) from
+        the arm's errors and the encoder noise, :func:`.measurements.chain_velocity_covariance`)."""
+        cfg = self.config
+        B = len(t_ns)
+        n = self.fixture.n_joints
+        zeros = np.zeros((B, 3))
+        if not len(self._joints):
+            return (np.zeros(B, bool), np.zeros((B, n)), np.zeros((B, n)), zeros,
+                    np.zeros((B, 3, 3)), np.zeros((B, 3, 3)))
+        covered, q, qd = self._joints.motion_at(t_ns, cfg.stationary_joint_tolerance_rad)
+        if q is None or qd is None:
+            return (covered, np.zeros((B, n)), np.zeros((B, n)), zeros, np.zeros((B, 3, 3)),
+                    np.zeros((B, 3, 3)))
+        if self._chain_fixtures is None:
+            self._chain_fixtures = lengthened_chains(self.fixture)
+        jt = self._joints.t_ns
+        dt_j = (jt[-1] - jt[0]) * 1e-9 / max(len(jt) - 1, 1) if len(jt) > 1 else 0.01
+        qd_sigma = 1.5 * cfg.chain_encoder_sigma_rad / max(dt_j, 1e-4)
+        v_anchor = self.fixture.anchor_velocity_enu_m_s(q, qd)
+        C_v = chain_velocity_covariance(self._chain_fixtures, q, qd,
+                                        cfg.chain_joint_offset_sigma_rad, cfg.chain_link_sigma_m,
+                                        qd_sigma, cfg.chain_error_correlation)
+        C_a = chain_attitude_covariance(self.fixture, q, cfg.chain_joint_offset_sigma_rad,
+                                        cfg.chain_error_correlation)
+        return covered, q, qd, v_anchor, C_v, C_a
 
     def _encoder_attitude(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray
                           ) -> tuple[FloatArray | None, FloatArray | None, NDArray[np.bool_]]:

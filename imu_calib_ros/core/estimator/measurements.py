@@ -14,6 +14,8 @@ applies ``exp(mu) = exp(mu_hat) exp(-x_mu)``).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
@@ -27,11 +29,17 @@ MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the 
 
 def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad_s: FloatArray,
                   omega_ie_enu_rad_s: FloatArray, rho_imu_m: FloatArray,
-                  layout: StateLayout) -> tuple[FloatArray, FloatArray]:
-    """Zero velocity of the turntable with the lever arm (METHODS.md, "cuts across").
+                  layout: StateLayout, v_anchor_enu_m_s: FloatArray | None = None
+                  ) -> tuple[FloatArray, FloatArray]:
+    """Zero velocity of the turntable with the lever arm (METHODS.md, "cuts across"), or the
+    chain velocity of a general fixture (issue 15: a robot arm).
 
     On a rigid fixture the IMU reference point, ``rho`` from the axes' common point, moves
     with ``v_enu = R_enu_imu (omega_eb_imu x rho)``, ``omega_eb = omega_ib - R^T omega_ie``.
+    On a general chain ``rho`` is measured from the anchor (the innermost joint frame's
+    origin), which itself moves with ``v_anchor`` (``Fixture.anchor_velocity_enu_m_s`` at the
+    encoder angles and rates): ``v_enu = v_anchor + R_enu_imu (omega_eb_imu x rho)``, the same
+    ``H`` (``v_anchor`` depends on no state).
     The innovation is the navigated velocity minus that:
     ``z = v_hat - R_hat (omega_eb x rho_hat) = dv + [(R u) x] psi - R [omega_eb x] x_rho``,
     ``u = omega_eb x rho``. Not in ``H``: the earth-rate part of ``omega_eb`` through psi
@@ -42,6 +50,8 @@ def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad
     ----------
     v_enu_m_s : (B, 3)
         Navigated velocity at the chunk ends.
+    v_anchor_enu_m_s : (B, 3), optional
+        Velocity of the anchor from the joint encoders (general chains); None: zero.
     R_enu_imu : (B, 3, 3)
         Navigated attitude at the chunk ends.
     omega_ib_imu_rad_s : (B, 3)
@@ -62,6 +72,8 @@ def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad
     u = w_eb @ skew(rho_imu_m)  # omega_eb x rho (np.cross costs 10x on (B, 3))
     Ru = (R_enu_imu @ u[:, :, None])[:, :, 0]
     z = v_enu_m_s - Ru
+    if v_anchor_enu_m_s is not None:
+        z = z - v_anchor_enu_m_s
     H = np.zeros((len(z), 3, layout.n))
     H[:, :, 3:6] = np.eye(3)
     H[:, :, 0:3] = skew(Ru)
@@ -116,3 +128,71 @@ def to_filter_units(z: FloatArray, H: FloatArray,
 def noise_covariance(sigma: float) -> FloatArray:
     """``R`` of a 3-D measurement with one-sigma ``sigma`` (SI) in the filter's units."""
     return np.eye(3) * (sigma / MEAS_SCALE) ** 2
+
+
+def chain_velocity_covariance(fixtures: tuple[Any, ...], q: FloatArray, qd: FloatArray,
+                              joint_offset_sigma_rad: float, link_sigma_m: float,
+                              qd_sigma_rad_s: float, correlation: float) -> FloatArray:
+    """Covariance (B, 3, 3) [m^2/s^2] of a general chain's anchor velocity from the encoders
+    (issue 15 item 4): what the arm's errors and the encoder noise can do to it.
+
+    ``fixtures[0]`` is the nominal chain, ``fixtures[1:]`` the same chain with one joint
+    origin lengthened by 1 mm each (link-length sensitivities). Zero-offset sensitivities are
+    ``dv/dq_j`` (a zero offset is an angle error), link ones ``dv/dl_j``, both by differences
+    of ``anchor_velocity_enu_m_s`` (exactly linear in qd, so they vanish at rest); the rate
+    noise enters through ``dv/dqd_j`` for joints that move. The arm errors are systematic over
+    a move: their share is multiplied by ``correlation`` (the number of updates one error
+    spans), so that the filter, which takes updates as independent, cannot average them away.
+    """
+    fx = fixtures[0]
+    B, n = q.shape
+    v0 = fx.anchor_velocity_enu_m_s(q, qd)
+    C = np.zeros((B, 3, 3))
+    h = 1e-6
+    if joint_offset_sigma_rad > 0:
+        for j in range(n):
+            if not fx.joints[j].revolute:
+                continue
+            dq = np.zeros(n)
+            dq[j] = h
+            D = (fx.anchor_velocity_enu_m_s(q + dq, qd) - v0) / h
+            C += joint_offset_sigma_rad ** 2 * D[:, :, None] * D[:, None, :]
+    if link_sigma_m > 0:
+        for pert in fixtures[1:]:
+            D = (pert.anchor_velocity_enu_m_s(q, qd) - v0) / 1e-3
+            C += link_sigma_m ** 2 * D[:, :, None] * D[:, None, :]
+    C *= correlation
+    if qd_sigma_rad_s > 0:
+        moving = qd != 0.0
+        for j in range(n):
+            if not moving[:, j].any():
+                continue
+            e = np.zeros((B, n))
+            e[:, j] = 1.0
+            D = fx.anchor_velocity_enu_m_s(q, e) * moving[:, j, None]
+            C += qd_sigma_rad_s ** 2 * D[:, :, None] * D[:, None, :]
+    return C
+
+
+def chain_attitude_covariance(fixture: Any, q: FloatArray, joint_offset_sigma_rad: float,
+                              correlation: float) -> FloatArray:
+    """Covariance (B, 3, 3) [rad^2] of the encoder attitude of a general chain from its joint
+    zero offsets: an offset ``dq_j`` turns the IMU by ``dq_j u_j`` (ENU); systematic over a
+    dwell, hence ``correlation`` as in :func:`chain_velocity_covariance`."""
+    u = fixture.angular_axes_enu(q)  # (B, n, 3)
+    return (joint_offset_sigma_rad ** 2 * correlation) * np.einsum('bni,bnj->bij', u, u)
+
+
+def lengthened_chains(fixture: Any, dl_m: float = 1e-3) -> tuple[Any, ...]:
+    """``(fixture, copies with joint origin j lengthened by dl_m along itself ...)`` for the
+    joints with an origin offset (:func:`chain_velocity_covariance`)."""
+    from dataclasses import replace
+    out = [fixture]
+    for j, joint in enumerate(fixture.joints):
+        xyz = joint.origin_xyz_m
+        if xyz is None:
+            continue
+        joints = list(fixture.joints)
+        joints[j] = replace(joint, origin_xyz_m=xyz * (1.0 + dl_m / float(np.linalg.norm(xyz))))
+        out.append(fixture.with_joints(tuple(joints)))
+    return tuple(out)

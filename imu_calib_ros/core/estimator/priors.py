@@ -109,6 +109,8 @@ def prior_vector(prior: dict[str, FloatArray], groups: tuple[str, ...]) -> Float
 
 def nominal_lever_arm(fixture: Any) -> FloatArray:
     """The nominal fixture's reference-point offset from the axes, IMU frame [m]."""
+    if not getattr(fixture, 'concurrent', True):  # a general chain: from its anchor
+        return fixture.lever_arm_imu_m  # type: ignore[no-any-return]
     q0 = np.zeros(fixture.n_joints)
     return fixture.R_enu_imu(q0).T @ fixture.p_enu_m(q0)
 

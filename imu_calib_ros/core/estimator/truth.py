@@ -26,8 +26,11 @@ def calibration_truth(est: Any, sim: Any) -> NDArray[np.float64]:
     tf, fx = sim.true_fixture, est.fixture
     q0 = np.zeros(tf.n_joints)
     if 'lever_arm' in lay.slices:
-        x[lay.slices['lever_arm']] = tf.R_enu_imu(q0).T @ tf.p_enu_m(q0)
+        x[lay.slices['lever_arm']] = (  # a chain: the true point from the nominal one
+            tf.R_enu_imu(q0).T @ tf.p_enu_m(q0) if tf.concurrent
+            else tf.R_joint_imu.T @ (tf.imu_xyz_m - fx.imu_xyz_m))
     if 'mounting' in lay.slices:
-        x[lay.slices['mounting']] = Rotation.from_matrix(
-            fx.R_enu_imu(q0).T @ tf.R_enu_imu(q0)).as_rotvec()
+        R_m = (fx.R_enu_imu(q0).T @ tf.R_enu_imu(q0) if fx.concurrent  # arm: the IMU on its
+               else fx.R_joint_imu.T @ tf.R_joint_imu)  # link (joint errors are not mounting)
+        x[lay.slices['mounting']] = Rotation.from_matrix(R_m).as_rotvec()
     return x[6:]
