@@ -66,9 +66,76 @@ def _intervals_ns(stamps_ns: NDArray[np.int64]) -> FloatArray:
     return sample_intervals_ns(stamps_ns)[0]
 
 
-def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: FloatArray,
-                     causal: bool) -> FloatArray:
-    """Angle-weighted mean of ``x`` over one revolution (eq. 12), for each ``centre`` angle.
+def _plane_basis(u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Unit vectors ``e1, e2`` with ``e1 x e2 = u``: the plane the modulation turns in."""
+    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def _rotating_mean(phi0: FloatArray, phi1: FloatArray) -> NDArray[np.complex128]:
+    """Mean of ``exp(-i phi)`` over each sample's angle interval ``[phi0, phi1]``.
+
+    In plane coordinates (``z = x.e1 + i x.e2``) a body-fixed vector ``v`` reads
+    ``v exp(-i phi)`` in the sensor frame (``R_s_b = Rot(u, -phi)``), so a sample (an interval
+    mean) holds ``v`` times this: ``exp(-i mid) sin(h)/h`` with ``h`` the half-interval.
+    """
+    mid = 0.5 * (phi0 + phi1)
+    half = 0.5 * (phi1 - phi0)
+    return np.exp(-1j * mid) * np.sinc(half / np.pi)
+
+
+def _features(x: FloatArray, m: NDArray[np.complex128], e1: FloatArray, e2: FloatArray,
+              ) -> NDArray[np.complex128]:
+    """Per-sample terms of the revolution fit's normal equations (:func:`_fit_bias`):
+    ``1, m, m^2, |m|^2``, then per sensor (gyro, accel) ``z, conj(m) z, m z``."""
+    cols = [np.ones_like(m), m, m * m, (m * m.conj()).real.astype(complex)]
+    for k in (0, 3):
+        z = x[:, k:k + 3] @ e1 + 1j * (x[:, k:k + 3] @ e2)
+        cols += [z, m.conj() * z, m * z]
+    return np.stack(cols, axis=1)
+
+
+def _fit_bias(S: NDArray[np.complex128], e1: FloatArray, e2: FloatArray,
+              ) -> tuple[FloatArray, FloatArray]:
+    """Bias perpendicular to the axis (gyro and accel, ``(N, 3)`` each) from the window sums.
+
+    ``S`` holds the angle-weighted sums of :func:`_features` over one revolution window. The
+    paper's estimate (eq. 12) is the plain mean ``sum(w z) / sum(w)``: exact when the window
+    covers the revolution, but a lost stretch (samples lost in transport, CONTRACT 1 gaps)
+    leaves the rotating part of the signal (gravity, earth rate, in the sensor frame a
+    vector turning with ``exp(-i phi)``) out of balance: a hole of angle ``h`` biases the mean
+    by up to ``|v| 2 sin(h/2) / (2 pi - h)``, 2.5 m/s^2 for 60 deg of gravity (issue 16 item
+    3). Here each sample is modelled as ``b + v m + c conj(m)`` (bias, the body-fixed vector,
+    and the counter-rotating part any scale or misalignment error adds) and ``b`` fitted by
+    weighted least squares over the samples present: the same value as the mean on a
+    complete revolution (the rotating sums vanish), exact with holes for a constant body
+    vector and any linear sensor error.
+    """
+    n = S.shape[0]
+    w, sm, sm2, smm = S[:, 0], S[:, 1], S[:, 2], S[:, 3]
+    A = np.empty((n, 3, 3), complex)
+    A[:, 0] = np.stack([w, sm, sm.conj()], axis=1)
+    A[:, 1] = np.stack([sm.conj(), smm, sm2.conj()], axis=1)
+    A[:, 2] = np.stack([sm, sm2, smm], axis=1)
+    rhs = np.stack([S[:, 4:7], S[:, 7:10]], axis=2)  # (n, 3, 2): gyro, accel
+    wr = np.where(w.real > 0, w.real, 1.0)
+    b = rhs[:, 0, :] / wr[:, None]  # the plain mean (no angle covered: zero)
+    # the fit where the window is well conditioned (a platform at rest has no rotation)
+    scale = wr[:, None, None]
+    ok = (w.real > 0) & (np.abs(np.linalg.det(A / scale)) > 1e-9)
+    if ok.any():
+        b[ok] = np.linalg.solve(A[ok], rhs[ok])[:, 0, :]
+    out = [np.outer(b[:, k].real, e1) + np.outer(b[:, k].imag, e2) for k in (0, 1)]
+    return out[0], out[1]
+
+
+def _revolution_bias(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: FloatArray,
+                     causal: bool, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Gyro and accel bias perpendicular to ``u`` over one revolution (eq. 12, fitted as in
+    :func:`_fit_bias`) for each ``centre`` angle, and the fraction of the revolution the
+    samples present cover (1 = no loss).
 
     Sample k covers the angle interval ``[phi0_k, phi1_k]``; the revolution is
     ``(c - 2 pi, c]`` (causal) or ``(c - pi, c + pi]``; it is clamped into the recording.
@@ -77,15 +144,14 @@ def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: 
     a0, a1 = sgn * phi0, sgn * phi1
     c = sgn * centre
     w = a1 - a0
-    cum_w = np.cumsum(w)
-    cum_x = np.cumsum(x * w[:, None], axis=0)
+    e1, e2 = _plane_basis(u)
+    F = _features(x, _rotating_mean(phi0, phi1), e1, e2)
+    cum = np.cumsum(F * w[:, None], axis=0)
     # knots at both ends of every sample: the cumulative sums rise inside a sample and stay
     # flat over the angle a lost stretch (a gap, CONTRACT 1) would have covered. (One knot
     # per sample end spread each sample after a gap over the gap's angle too.)
-    prev_w = np.concatenate([[0.0], cum_w[:-1]])
-    prev_x = np.concatenate([np.zeros((1, x.shape[1])), cum_x[:-1]])
-    cw = np.stack([prev_w, cum_w], axis=1).ravel()
-    cx = np.stack([prev_x, cum_x], axis=1).reshape(-1, x.shape[1])
+    prev = np.concatenate([np.zeros((1, F.shape[1]), complex), cum[:-1]])
+    ck = np.stack([prev, cum], axis=1).reshape(-1, F.shape[1])
     hi = c if causal else c + np.pi
     hi = np.clip(hi, a0[0] + 2 * np.pi, a1[-1])
     lo = hi - 2 * np.pi
@@ -93,10 +159,10 @@ def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: 
     # partial samples at both ends by interpolation (end angles of a turning platform are
     # monotonic; np.maximum.accumulate guards against encoder jitter)
     edges = np.maximum.accumulate(np.stack([a0, a1], axis=1).ravel())
-    wsum = np.interp(hi, edges, cw) - np.interp(lo, edges, cw)
-    xs = np.stack([np.interp(hi, edges, cx[:, k]) - np.interp(lo, edges, cx[:, k])
-                   for k in range(x.shape[1])], axis=1)
-    return xs / np.where(wsum > 0, wsum, 1.0)[:, None]
+    S = np.stack([np.interp(hi, edges, ck[:, k]) - np.interp(lo, edges, ck[:, k])
+                  for k in range(F.shape[1])], axis=1)
+    bg, ba = _fit_bias(S, e1, e2)
+    return bg, ba, S[:, 0].real / (2 * np.pi)
 
 
 def _derotate(u: FloatArray, phi0: FloatArray, phi1: FloatArray, v_s: FloatArray) -> FloatArray:
@@ -134,12 +200,10 @@ def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
         accel = specific force, both in the body frame ``b``.
     """
     _, phi0, phi1, u = _setup(imu, joints, fixture, joint)
-    P = np.eye(3) - np.outer(u, u)
     gyro = np.asarray(imu.gyro_rad_s, float)
     accel = np.asarray(imu.accel_m_s2, float)
     centre = 0.5 * (phi0 + phi1)
-    bg = _revolution_mean(gyro, phi0, phi1, centre, causal) @ P
-    ba = _revolution_mean(accel, phi0, phi1, centre, causal) @ P
+    bg, ba, _ = _revolution_bias(np.hstack([gyro, accel]), phi0, phi1, centre, causal, u)
     dt = _intervals_ns(imu.stamps_ns)
     rate = ((phi1 - phi0) / (dt * 1e-9))[:, None] * u  # platform rate, same in s and b
     w_b = _derotate(u, phi0, phi1, gyro - bg - rate)
@@ -166,7 +230,6 @@ def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str
         raise InputError(f'--mode must be one of {sorted(MODES)} or continuous, got {mode!r}')
     n = MODES[mode]
     _, phi0, phi1, u = _setup(imu, joints, fixture, joint)
-    P = np.eye(3) - np.outer(u, u)
     gyro = np.asarray(imu.gyro_rad_s, float)
     accel = np.asarray(imu.accel_m_s2, float)
     sgn = 1.0 if phi1[-1] >= phi1[0] else -1.0
@@ -184,8 +247,7 @@ def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str
     # gyro's own averaging interval). The paper's step / time between crossings assumes a
     # constant rate: after a spin-up the first output was off by ~50 deg/s (one-point mode)
     rate = (phi1[idx] - phi0[idx]) / (_intervals_ns(imu.stamps_ns)[idx] * 1e-9)
-    bg = _revolution_mean(gyro, phi0, phi1, cp, True) @ P
-    ba = _revolution_mean(accel, phi0, phi1, cp, True) @ P
+    bg, ba, _ = _revolution_bias(np.hstack([gyro, accel]), phi0, phi1, cp, True, u)
     t = imu.stamps_ns[idx]
     R = rot_axis_angle(u, cp)
     w_b = np.einsum('nij,nj->ni', R, gyro[idx] - bg - rate[:, None] * u)
