@@ -12,6 +12,16 @@ The calibration node runs twice, estimator in a child process (the default) and 
 thread, to show which keeps the p99 under the GIL.
 
 Run: ``.venv/bin/python bench/bench_live.py [--seconds 10] [--skip-thread]``.
+
+``--bag`` (issue 16 item 8): CPU per sample of the whole live path against the offline
+estimator on the same data. A simulated MEMS bag (``demo_short``, 185 s at 200 Hz, 37,000
+IMU samples) is replayed offline (``replay_run``, what ``imu-calib replay`` runs), then
+played by ``bag_player`` at ``--rate`` (default 10: 2,000 IMU samples/s) into the
+calibration node, which saves on SIGINT. Printed: CPU per IMU sample offline and live (node
+process + its estimator process, the whole run up to the save), the live path's CPU share
+while the bag plays (target: at most half of one core at 2 kHz), what the node received,
+lost and dropped, the saved file's input account, and one SUMMARY line.
+``.venv/bin/python bench/bench_live.py --bag [--rate 10]``.
 """
 from __future__ import annotations
 
@@ -171,7 +181,90 @@ def run(node_cmd: list[str], imu_hz: float, seconds: float) -> dict[str, float]:
             'estimator_chunks': diag.get('estimator.chunks', '-')}
 
 
+def run_bag(rate: float) -> int:
+    """Live path against offline on one simulated bag (see the module docstring)."""
+    import resource
+    import yaml
+    from imu_calib_ros.core.estimator.config import EstimatorConfig
+    from imu_calib_ros.core.estimator.replay import replay_run
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.imu_grade import load_grade
+    from imu_calib_ros.core.plans import build_profile, load_plan
+    from imu_calib_ros.core.simulator import SimConfig, simulate
+    from imu_calib_ros.msg_adapters.bag import iter_bag, write_bag
+    tmp = Path(tempfile.mkdtemp())
+    fx = load_fixture('three_axis')
+    sim = simulate(fx, build_profile(load_plan('demo_short'), fx), load_grade('mems_mti1'),
+                   SimConfig(imu_rate_hz=200, seed=2))
+    bag = write_bag(tmp / 'bag', sim.imu, sim.joints)
+    n = len(sim.imu)
+    c0 = time.process_time()
+    replay_run(lambda: iter_bag(bag, '/imu/data_raw', '/joint_states'), fx, None,
+               EstimatorConfig())
+    off_cpu = time.process_time() - c0
+    print(f'offline (replay_run, bag read included): {off_cpu:.2f} s CPU for {n} IMU samples '
+          f'= {off_cpu / n * 1e6:.1f} us/sample', flush=True)
+    out = tmp / 'live.yaml'
+    py = [sys.executable, '-m']
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    node = subprocess.Popen(py + ['imu_calib_ros.nodes.calibration', '--ros-args', '-p',
+                                  'fixture:=three_axis', '-p', f'output_file:={out}', '-p',
+                                  'save_on_shutdown:=true', '-p', 'force_save:=true', '-p',
+                                  'queue_depth:=5000'],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    time.sleep(2.0)
+    player = subprocess.Popen(py + ['imu_calib_ros.nodes.bag_player', '--ros-args', '-p',
+                                    f'bag:={bag}', '-p', f'rate:={rate}', '-p',
+                                    'wait_for_subscribers:=1', '-p', 'wait_timeout_s:=60.0'],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # the play starts once the node matched: measure from the first second of it
+    time.sleep(1.0)
+    kids = children(node.pid)
+    cpu0 = [cpu_seconds(p) for p in [node.pid] + kids]
+    w0 = time.monotonic()
+    _, _, ru_player = os.wait4(player.pid, 0)
+    player.returncode = 0
+    w1 = time.monotonic()
+    cpu1 = [cpu_seconds(p) for p in [node.pid] + kids]
+    node.send_signal(signal.SIGINT)
+    try:
+        log = node.communicate(timeout=180)[0].decode(errors='replace')
+    except subprocess.TimeoutExpired:
+        node.kill()
+        log = node.communicate()[0].decode(errors='replace')
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    live_cpu = (r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
+                - ru_player.ru_utime - ru_player.ru_stime)
+    share = (sum(cpu1) - sum(cpu0)) / max(w1 - w0, 1e-9)
+    share_node = (cpu1[0] - cpu0[0]) / max(w1 - w0, 1e-9)
+    played = n / max(w1 - w0 + 1.0, 1e-9)
+    account = {}
+    if out.exists():
+        account = yaml.safe_load(out.read_text())['imu_calibration']['provenance']['input']
+    line = [ln for ln in log.splitlines() if 'save on shutdown' in ln]
+    print(f'live (calibration node + estimator process, whole run incl. the save): '
+          f'{live_cpu:.2f} s CPU = {live_cpu / n * 1e6:.1f} us/sample; while playing '
+          f'{played:.0f} IMU samples/s: CPU {share:.0%} of one core (node {share_node:.0%}, '
+          f'estimator {share - share_node:.0%}); bag_player '
+          f'{ru_player.ru_utime + ru_player.ru_stime:.1f} s CPU (not the live path)',
+          flush=True)
+    print(f'node: {line[-1] if line else log[-500:]}', flush=True)
+    print(f'input account: {account}', flush=True)
+    ratio = live_cpu / off_cpu
+    ok = bool(account) and not account.get('partial', True) and share <= 0.5
+    print(f'SUMMARY live path at {played:.0f} samples/s: {live_cpu / n * 1e6:.0f} us/sample '
+          f'live vs {off_cpu / n * 1e6:.0f} us/sample offline ({ratio:.1f}x), CPU '
+          f'{share:.0%} of one core, {account.get("summary", "no file saved")} -> '
+          f'{"met" if ok else "NOT met"} (target: complete, <= 50 % of one core)')
+    return 0 if ok else 1
+
+
 def main() -> int:
+    if len(sys.argv) > 1 and sys.argv[1] == '--bag':
+        rate = float(sys.argv[sys.argv.index('--rate') + 1]) if '--rate' in sys.argv else 10.0
+        os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        return run_bag(rate)
     if len(sys.argv) > 1 and sys.argv[1] == '--publisher':
         publisher(float(sys.argv[2]), float(sys.argv[3]), 100.0,
                   len(sys.argv) > 4 and sys.argv[4] == 'scheduled')

@@ -99,3 +99,97 @@ def test_node_output_equals_offline_causal(mode: str) -> None:
         np.testing.assert_allclose(s.gyro_rad_s, ref.gyro_rad_s[i], rtol=0, atol=1e-9)
         np.testing.assert_allclose(s.accel_m_s2, ref.accel_m_s2[i], rtol=0, atol=1e-9)
         assert s.frame_id == f'{sim.imu.frame_id}_body'
+
+
+def test_node_under_sample_loss_is_right_or_withholds_and_says_so() -> None:
+    """Issue 16 item 3 over DDS. The inner axis (horizontal: gravity turns in the sensor
+    frame) spins at 150 deg/s; bursts of raw samples (5-20) are never sent, and one stretch
+    of 1 s (150 deg, 42 % of a revolution). Every output the node publishes is within
+    0.01 m/s^2 of the offline result on the loss-free data (before: up to 2.5 m/s^2 off, no
+    warning); the outputs whose revolution lost more than 25 % are withheld and counted;
+    ``/diagnostics`` (the node published none before) counts each lost sample and says WARN
+    while it happens."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    fx = load_fixture('three_axis')
+    plan = plan_from_dict({'name': 'm', 'steps': [
+        {'dwell': {'duration_s': 0.5}},
+        {'spin': {'joint': 'inner', 'rate_deg_s': 150, 'duration_s': 16, 'ramp_s': 0.5}},
+        {'dwell': {'duration_s': 0.5}}]})
+    sim = simulate(fx, build_profile(plan, fx), load_grade('mems_mti1'),
+                   SimConfig(imu_rate_hz=100, joint_rate_hz=50, seed=4))
+    full = mod.demodulate(sim.imu, sim.joints, fx, 'continuous', joint='inner', causal=True)
+    n = len(sim.imu)
+    rng = np.random.default_rng(5)
+    skip = np.zeros(n, bool)
+    for s in rng.choice(np.arange(300, n - 300), 12, replace=False):
+        skip[s:s + rng.integers(5, 21)] = True
+    skip[900:1000] = True  # 1 s
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'imu_calib_ros.nodes.modulation', '--ros-args', '-p',
+         'fixture:=three_axis', '-p', 'joint:=inner', '-p', 'queue_depth:=5000', '-p',
+         'diagnostics_rate_hz:=4.0', '-p', 'stale_timeout_s:=30.0', '-p',
+         'qos_overrides./imu/data_raw.subscription.reliability:=reliable'],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    rclpy.init(args=[])
+    node = rclpy.create_node(f'test_modulation_loss_{os.getpid()}')
+    got: dict[int, object] = {}
+    diags: list[DiagnosticArray] = []
+    try:
+        pub_i = node.create_publisher(Imu, 'imu/data_raw', reliable_qos(5000))
+        pub_j = node.create_publisher(JointState, 'joint_states', reliable_qos(5000))
+        node.create_subscription(Imu, 'imu/data_body',
+                                 lambda m: got.__setitem__(imu_sample_from_msg(m).stamp_ns,
+                                                           imu_sample_from_msg(m)),
+                                 reliable_qos(5000))
+        node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 100)
+        deadline = time.monotonic() + 30.0
+        while (pub_i.get_subscription_count() == 0 or pub_j.get_subscription_count() == 0
+               or node.count_publishers('imu/data_body') == 0):
+            assert time.monotonic() < deadline, 'node did not come up: ' + str(proc.poll())
+            rclpy.spin_once(node, timeout_sec=0.1)
+        events = sorted([(s.stamp_ns, 0, s) for s in sim.joints]
+                        + [(s.stamp_ns, 1, s) for i, s in enumerate(sim.imu) if not skip[i]],
+                        key=lambda e: (e[0], e[1]))
+        for k, (_, kind, s) in enumerate(events):
+            if kind == 0:
+                pub_j.publish(joint_state_msg_from_sample(s, JointState))
+            else:
+                pub_i.publish(imu_msg_from_sample(s, Imu))
+            if k % 20 == 0:
+                rclpy.spin_once(node, timeout_sec=0.0)
+                time.sleep(0.02)  # ~2.5x real time: the diagnostics see the losses happen
+        deadline = time.monotonic() + 15.0
+        last = int(sim.imu.stamps_ns[~skip][-1])
+
+        def counted() -> dict[str, str]:
+            st = [s for d in diags for s in d.status if 'demodulation' in s.name]
+            return {kv.key: kv.value for kv in st[-1].values} if st else {}
+        while (last not in got or int(counted().get('imu_in', 0)) < int((~skip).sum())) \
+                and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        values = counted()
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    log = stop_node(proc, wait_s=10.0)
+    idx = {int(t): i for i, t in enumerate(full.stamps_ns)}
+    t0 = int(sim.imu.stamps_ns[0])
+    steady = [t for t in got if t0 + 4_000_000_000 < t < t0 + 16_500_000_000]
+    assert len(steady) > 700, (len(got), log[-2000:])
+    err = max(float(np.max(np.abs(np.asarray(got[t].accel_m_s2) - full.accel_m_s2[idx[t]])))
+              for t in steady)
+    # noise of the fit over a revolution with its holes: 3 x 120 ug/sqrt(Hz) / sqrt(2.4 s)
+    # x 3 = 7e-3 m/s^2; the plain mean was off by up to 2.5 m/s^2
+    print(f'largest accel error {err:.4f} m/s^2 over {len(steady)} outputs; {values}')
+    assert err < 0.01, err
+    assert int(values['lost_imu']) == int(skip.sum()), (values, int(skip.sum()))
+    withheld = int(values['withheld_low_coverage'])
+    # the 1 s hole (150 deg) leaves < 75 % of a revolution for ~1 revolution of outputs
+    assert 50 < withheld < 400, values
+    assert int(values['fitted_after_loss']) > 200, values
+    # every sample in is out, withheld, or before the first revolution
+    assert int(values['published']) + withheld + int(values['warming_up']) >= \
+        int(values['imu_in']) - 5, values
+    levels = [s.level for d in diags for s in d.status if 'demodulation' in s.name]
+    assert DiagnosticStatus.WARN in levels, levels
+    assert 'Traceback' not in log, log[-2000:]

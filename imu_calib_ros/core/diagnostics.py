@@ -95,3 +95,94 @@ def frame_mismatch(imu_received: int, rejected_for_frame: int, received_frame: s
         return ''
     return (f'every IMU sample rejected: header.frame_id "{received_frame}" received, '
             f'"{expected_frame}" expected (fix the driver\'s frame or set frame_id)')
+
+
+#: ``health()`` counters that each restart the navigation (the filter re-aligns at the next
+#: stationary window; samples until then are not used): gaps that re-initialised it, resets
+#: (a backward clock jump), re-alignments after a gate cascade, restarts after divergence.
+NAVIGATION_RESTART_KEYS = ('gaps_reinitialised', 'navigation_resets', 'realignments',
+                           'restarts')
+
+
+def navigation_restarts(health: Mapping[str, Any]) -> int:
+    """Navigation restarts of a run (:data:`NAVIGATION_RESTART_KEYS` summed)."""
+    return sum(int(health.get(k, 0) or 0) for k in NAVIGATION_RESTART_KEYS)
+
+
+def input_account(health: Mapping[str, Any], received_imu: int, lost_imu: int,
+                  dropped_imu: int, rejected_imu: int, lost_joints: int,
+                  stopped: str = '') -> dict[str, Any]:
+    """What a live calibration was built from (issue 16 item 8), for the terminal and the file.
+
+    Parameters
+    ----------
+    health : the estimator's ``health()`` (``imu_processed``: samples through the filter).
+    received_imu : raw IMU samples the node received.
+    lost_imu : samples lost before the node (stamp gaps: upstream or in DDS).
+    dropped_imu : samples the node received but dropped before the estimator (its queue full).
+    rejected_imu : samples the node rejected (frame, non-finite, out of order, ...).
+    lost_joints : joint states lost before the node (stamp gaps).
+    stopped : why the estimator stopped ('' = it did not).
+
+    Returns
+    -------
+    dict
+        ``samples`` (M: received + lost upstream), ``used_samples`` (N), ``lost_imu``,
+        ``dropped_imu``, ``rejected_imu``, ``lost_joint_states``, ``navigation_restarts``
+        (K), ``partial`` (any loss, drop or restart), ``stopped`` and ``summary``: ``partial:
+        used N of M samples, K navigation restarts`` (``complete: ...`` otherwise).
+    """
+    m = int(received_imu) + int(lost_imu)
+    n = int(health.get('imu_processed', 0) or 0)
+    k = navigation_restarts(health)
+    partial = bool(lost_imu or dropped_imu or rejected_imu or lost_joints or k or stopped)
+    summary = f'{"partial" if partial else "complete"}: used {n} of {m} samples, {k} ' \
+              f'navigation restart{"" if k == 1 else "s"}'
+    if stopped:
+        summary += f'; the estimator stopped ({stopped})'
+    return {'partial': partial, 'summary': summary, 'used_samples': n, 'samples': m,
+            'lost_imu': int(lost_imu), 'dropped_imu': int(dropped_imu),
+            'rejected_imu': int(rejected_imu), 'lost_joint_states': int(lost_joints),
+            'navigation_restarts': k, 'stopped': stopped}
+
+
+class StampGapCounter:
+    """Messages lost before a subscriber, counted from the gaps in their header stamps.
+
+    The nominal period is the median of the first :attr:`INTERVALS` stamp intervals; after
+    that an interval ``d`` longer than 1.5 periods (CONTRACT 1's gap rule) counts
+    ``round(d / period) - 1`` lost messages (the intervals it was learnt from too).
+    """
+
+    INTERVALS = 20
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last stamp (a time jump, a reset); the period is kept."""
+        self._last: int | None = None
+        if not hasattr(self, 'period_ns'):
+            self.period_ns: float | None = None
+            self._learning: list[int] = []
+
+    def push(self, stamp_ns: int) -> int:
+        """One stamp; returns how many messages it shows lost (0 until the period is known,
+        then the learning intervals' losses all at once)."""
+        last, self._last = self._last, int(stamp_ns)
+        if last is None or stamp_ns <= last:
+            return 0
+        d = int(stamp_ns) - last
+        if self.period_ns is None:
+            self._learning.append(d)
+            if len(self._learning) < self.INTERVALS:
+                return 0
+            self.period_ns = float(sorted(self._learning)[len(self._learning) // 2])
+            lost = sum(self._lost(x) for x in self._learning)
+            self._learning = []
+            return lost
+        return self._lost(d)
+
+    def _lost(self, d: int) -> int:
+        assert self.period_ns is not None
+        return max(round(d / self.period_ns) - 1, 0) if d > 1.5 * self.period_ns else 0

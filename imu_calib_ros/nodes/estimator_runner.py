@@ -32,7 +32,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..core.errors import ImuCalibError
-from ..core.types import ImuBatch, ImuSample, JointSample
+from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
 
 #: ``health()`` values meaning the filter diverged (issue 6: windowed NIS, covariance not
 #: positive definite, states out of their physical range).
@@ -126,44 +126,77 @@ class _Serve:
         self.error = ''
         self._chunks = -1
         self._health_t = 0.0
+        self._estimate_t = 0.0
         self._unposted = False  # input pushed since the last snapshot posted
+        self.received_imu = 0  # what reached the worker (the node's drops are not here)
+        self.received_joints = 0
+        self.last_imu_ns: int | None = None  # newest IMU stamp pushed
+        self._ran = False  # the filter ran at some point
+        self._stop_ns: int | None = None  # IMU stamp when it stopped running (None: running)
 
     def push(self, items: list[Any]) -> None:
-        """Push samples (already in stamp order) to the estimator, IMU runs as batches.
+        """Push samples (already in stamp order) to the estimator as offline replay does: the
+        batch's joint states first (one :class:`JointBatch` per run of one name list), then
+        its IMU samples as one :class:`ImuBatch` (joint states early, never late; the
+        estimator's results do not depend on the batch sizes: the same computation as
+        ``imu-calib replay``, issue 16 item 10). Pushing each joint state between the IMU
+        samples around it split a 50 ms batch into runs of two samples, each paying the
+        input guard's and the ledger's fixed cost (issue 16 item 8).
 
         IMU samples are :class:`ImuSample` or plain ``(stamp_ns, gyro (3,), accel (3,))``
         tuples (cheap to pickle); joint samples are :class:`JointSample`.
         """
-        run: list[Any] = []
-
-        def flush_run() -> None:
-            if isinstance(run[0], ImuSample):
-                batch = ImuBatch.from_samples(run)
-            else:
-                batch = ImuBatch(np.array([r[0] for r in run], np.int64),
-                                 np.array([r[1] for r in run], float),
-                                 np.array([r[2] for r in run], float), self.frame_id)
-            if self.ledger is not None:
-                self.ledger.imu(batch)
-            self.est.push_imu_batch(batch)
-            run.clear()
-
+        joints = [s for s in items if isinstance(s, JointSample)]
+        imu = [s for s in items if not isinstance(s, JointSample)]
+        self.received_imu += len(imu)
+        self.received_joints += len(joints)
         try:
-            for s in items:
-                if isinstance(s, JointSample):
-                    if run:
-                        flush_run()
+            start = 0
+            for k in range(1, len(joints) + 1):  # runs of one joint-name list
+                if k == len(joints) or joints[k].names != joints[start].names or \
+                        len(joints[k].positions_rad) != len(joints[start].positions_rad):
+                    run = joints[start:k]
+                    batch = JointBatch(np.array([j.stamp_ns for j in run], np.int64),
+                                       tuple(run[0].names),
+                                       np.array([np.asarray(j.positions_rad, float)
+                                                 for j in run]).reshape(len(run), -1))
                     if self.ledger is not None:
-                        self.ledger.joints(s)
-                    self.est.push_joint(s)
+                        self.ledger.joints(batch)
+                    self.est.push_joint_batch(batch)
+                    start = k
+            if imu:
+                if isinstance(imu[0], ImuSample):
+                    ib = ImuBatch.from_samples(imu)
                 else:
-                    run.append(s)
-            if run:
-                flush_run()
+                    ib = ImuBatch(np.array([r[0] for r in imu], np.int64),
+                                  np.array([r[1] for r in imu], float).reshape(-1, 3),
+                                  np.array([r[2] for r in imu], float).reshape(-1, 3),
+                                  self.frame_id)
+                if self.ledger is not None:
+                    self.ledger.imu(ib)
+                self.est.push_imu_batch(ib)
         except ImuCalibError as exc:
             self.error = f'estimator refused input: {exc}'
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             self.error = f'estimator failed: {type(exc).__name__}: {exc}'
+        self._note_running(imu)
+
+    def _note_running(self, imu: list[Any]) -> None:
+        """Remember since which IMU stamp the filter is not running (after it ran: a gap
+        re-initialised the navigation and no stationary window came to re-align it)."""
+        if imu:
+            last = imu[-1].stamp_ns if isinstance(imu[-1], ImuSample) else imu[-1][0]
+            self.last_imu_ns = max(int(last), self.last_imu_ns or int(last))
+        if bool(getattr(self.est, 'is_running', True)):
+            self._ran, self._stop_ns = True, None
+        elif self._ran and self._stop_ns is None:
+            self._stop_ns = self.last_imu_ns
+
+    def stopped_for_s(self) -> float:
+        """Seconds of IMU data (stamps) since the filter stopped running; 0 if running."""
+        if self._stop_ns is None or self.last_imu_ns is None:
+            return 0.0
+        return (self.last_imu_ns - self._stop_ns) * 1e-9
 
     def snapshot(self, force: bool = False, health_now: bool = False) -> None:
         """Post a snapshot when a block ran (the estimate changed) or health is due
@@ -172,9 +205,14 @@ class _Serve:
             health = dict(self.est.health())
         except Exception as exc:  # noqa: BLE001 - report, never kill the worker
             health = {'health_error': str(exc)}
+        health['received_imu'] = self.received_imu
+        health['stopped_for_s'] = self.stopped_for_s()
         chunks = int(health.get('chunks', 0) or 0)
         now = time.monotonic()
-        new_estimate = chunks != self._chunks
+        # a new estimate at most every health_period_s of wall time (a bag played fast ran
+        # estimate() after every block), or when asked (health, save)
+        new_estimate = chunks != self._chunks and (
+            force or health_now or now - self._estimate_t >= self.health_period_s)
         due = now - self._health_t >= self.health_period_s or (health_now and self._unposted)
         if not (force or new_estimate or due):
             self._unposted = True
@@ -185,6 +223,7 @@ class _Serve:
         verdict = None
         if force or new_estimate:
             self._chunks = chunks
+            self._estimate_t = now
             try:
                 result = self.est.estimate(frame_id=self.frame_id)
             except (ImuCalibError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
@@ -210,6 +249,7 @@ class _Serve:
         elif kind == 'frame_id':
             self.frame_id = msg[1]
         elif kind == 'reset':
+            self._ran, self._stop_ns = False, None
             self.est.reset()
             if self.ledger is not None:
                 self.ledger.reset()

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu, JointState
@@ -36,8 +37,8 @@ from ..core.fixture import load_fixture
 from ..core.methods.modulation import MODES, StreamingDemodulator
 from ..core.reorder import ReorderBuffer
 from ..msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
-from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit, reliable_qos,
-                     run_node, sensor_qos)
+from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit,
+                     quiet_publisher, reliable_qos, run_node, sensor_qos)
 
 NODE_NAME = 'modulation'
 
@@ -63,6 +64,15 @@ class ModulationConfig:
         'doc': 'longest wait [s] of a raw IMU sample to put the stream back in header-stamp'
                ' order (transport jitter); a later one counts as out_of_order; 0 = no wait',
         'min': 0.0, 'max': 1.0})
+    min_coverage: float = field(default=0.75, metadata={
+        'doc': 'withhold (count, not publish) an output whose revolution window the samples '
+               'present cover less than this fraction of (lost samples); the bias fitted '
+               'over a window with smaller holes is exact for a constant body vector',
+        'min': 0.0, 'max': 1.0})
+    diagnostics_rate_hz: float = field(default=1.0, metadata={
+        'doc': 'rate of /diagnostics [Hz]', 'min': 0.01, 'max': 100.0})
+    stale_timeout_s: float = field(default=2.0, metadata={
+        'doc': 'no raw IMU for this long [s, wall clock] = STALE', 'min': 0.01})
 
 
 class ModulationNode(Node):
@@ -98,6 +108,10 @@ class ModulationNode(Node):
                                                     reliable_qos(cfg.queue_depth))
         if cfg.reorder_window_s > 0:  # what waited its window when the stream pauses
             self.create_timer(0.05, self._release_held)
+        self._diag_pub = quiet_publisher(self, DiagnosticArray, '/diagnostics', reliable_qos())
+        self.create_timer(1.0 / cfg.diagnostics_rate_hz, self._on_diag_timer)
+        self._last_rx: float | None = None  # monotonic time of the last raw IMU message
+        self._diag_mark: dict[str, int] = {}  # loss counters at the last diagnostics
         self.get_logger().info(f'demodulating joint {joint!r}, mode {cfg.mode}')
 
     def _on_joints(self, msg: JointState) -> None:
@@ -109,7 +123,8 @@ class ModulationNode(Node):
             q[self._k] = 0.0
             axis = self._fixture.joint_axes_imu(q)[self._k]
             self.demod = StreamingDemodulator(axis, self._joint, self.config.mode,
-                                              self.config.max_pending)
+                                              self.config.max_pending,
+                                              min_coverage=self.config.min_coverage)
             # IMU samples that came before the first joint state (the two topics are not
             # ordered against each other): feed them first, as offline
             early, self._early = self._early, deque()
@@ -118,6 +133,7 @@ class ModulationNode(Node):
         self._publish(self.demod.push_joint(s))
 
     def _on_imu(self, msg: Imu) -> None:
+        self._last_rx = time.monotonic()
         s = imu_sample_from_msg(msg)
         if not finite(s.gyro_rad_s, s.accel_m_s2):
             self.rejected['non_finite'] += 1
@@ -136,6 +152,42 @@ class ModulationNode(Node):
             self._publish(self.demod.push_imu(s))
         else:
             self._early.append(s)
+
+    #: counters whose growth means outputs missing or wrong without it: WARN for that period
+    LOSS_KEYS = ('lost_imu', 'withheld_low_coverage', 'dropped_no_joint_states',
+                 'out_of_order')
+
+    def _on_diag_timer(self) -> None:
+        """``/diagnostics``: every counter (the demodulator's, rejections, reordering); STALE
+        without raw IMU for ``stale_timeout_s``, WARN while samples are lost or outputs
+        withheld (in the last period), else OK."""
+        c = dict(self.demod.counters) if self.demod is not None else {}
+        values = {k: str(v) for k, v in c.items()}
+        values.update({f'rejected.{k}': str(v) for k, v in self.rejected.items() if v})
+        values.update({f'reorder.{k}': str(v) for k, v in self._reorder.stats.as_dict().items()
+                       if v})
+        new = {k: c.get(k, 0) - self._diag_mark.get(k, 0) for k in self.LOSS_KEYS}
+        self._diag_mark = {k: c.get(k, 0) for k in self.LOSS_KEYS}
+        if self._last_rx is None or time.monotonic() - self._last_rx > \
+                self.config.stale_timeout_s:
+            level, message = DiagnosticStatus.STALE, 'no raw IMU data'
+        elif any(new.values()):
+            level = DiagnosticStatus.WARN
+            message = (f'{new["lost_imu"]} raw samples lost, {new["withheld_low_coverage"]} '
+                       f'outputs withheld (revolution covered < {self.config.min_coverage:g})'
+                       f' in the last period; {c.get("fitted_after_loss", 0)} outputs fitted '
+                       'over a window with a loss')
+        elif self.demod is None:
+            level, message = DiagnosticStatus.OK, 'waiting for joint states'
+        else:
+            level, message = DiagnosticStatus.OK, 'demodulating'
+        status = DiagnosticStatus(name=f'{self.get_name()}: rotation demodulation',
+                                  hardware_id=self.config.frame_id or self._joint,
+                                  level=level, message=message)
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(arr)
 
     def destroy_node(self) -> None:
         """Log the counters, then stop."""
@@ -160,7 +212,10 @@ INTERFACE = NodeInterface(
                  '-p qos_overrides./imu/data_raw.subscription.reliability:=reliable)'),
         Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'fixture joint positions')),
     publishes=(Endpoint('imu/data_body', 'sensor_msgs/msg/Imu',
-                        'body-frame stream (continuous, or 1/2/4 points per revolution)'),))
+                        'body-frame stream (continuous, or 1/2/4 points per revolution); '
+                        'outputs over a revolution with too much lost are withheld'),
+               Endpoint('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                        'counters (lost, withheld, fitted after a loss); OK/WARN/STALE')))
 
 
 def main(args: list[str] | None = None) -> int:

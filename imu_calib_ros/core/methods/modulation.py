@@ -66,9 +66,76 @@ def _intervals_ns(stamps_ns: NDArray[np.int64]) -> FloatArray:
     return sample_intervals_ns(stamps_ns)[0]
 
 
-def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: FloatArray,
-                     causal: bool) -> FloatArray:
-    """Angle-weighted mean of ``x`` over one revolution (eq. 12), for each ``centre`` angle.
+def _plane_basis(u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Unit vectors ``e1, e2`` with ``e1 x e2 = u``: the plane the modulation turns in."""
+    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def _rotating_mean(phi0: FloatArray, phi1: FloatArray) -> NDArray[np.complex128]:
+    """Mean of ``exp(-i phi)`` over each sample's angle interval ``[phi0, phi1]``.
+
+    In plane coordinates (``z = x.e1 + i x.e2``) a body-fixed vector ``v`` reads
+    ``v exp(-i phi)`` in the sensor frame (``R_s_b = Rot(u, -phi)``), so a sample (an interval
+    mean) holds ``v`` times this: ``exp(-i mid) sin(h)/h`` with ``h`` the half-interval.
+    """
+    mid = 0.5 * (phi0 + phi1)
+    half = 0.5 * (phi1 - phi0)
+    return np.exp(-1j * mid) * np.sinc(half / np.pi)
+
+
+def _features(x: FloatArray, m: NDArray[np.complex128], e1: FloatArray, e2: FloatArray,
+              ) -> NDArray[np.complex128]:
+    """Per-sample terms of the revolution fit's normal equations (:func:`_fit_bias`):
+    ``1, m, m^2, |m|^2``, then per sensor (gyro, accel) ``z, conj(m) z, m z``."""
+    cols = [np.ones_like(m), m, m * m, (m * m.conj()).real.astype(complex)]
+    for k in (0, 3):
+        z = x[:, k:k + 3] @ e1 + 1j * (x[:, k:k + 3] @ e2)
+        cols += [z, m.conj() * z, m * z]
+    return np.stack(cols, axis=1)
+
+
+def _fit_bias(S: NDArray[np.complex128], e1: FloatArray, e2: FloatArray,
+              ) -> tuple[FloatArray, FloatArray]:
+    """Bias perpendicular to the axis (gyro and accel, ``(N, 3)`` each) from the window sums.
+
+    ``S`` holds the angle-weighted sums of :func:`_features` over one revolution window. The
+    paper's estimate (eq. 12) is the plain mean ``sum(w z) / sum(w)``: exact when the window
+    covers the revolution, but a lost stretch (samples lost in transport, CONTRACT 1 gaps)
+    leaves the rotating part of the signal (gravity, earth rate, in the sensor frame a
+    vector turning with ``exp(-i phi)``) out of balance: a hole of angle ``h`` biases the mean
+    by up to ``|v| 2 sin(h/2) / (2 pi - h)``, 2.5 m/s^2 for 60 deg of gravity (issue 16 item
+    3). Here each sample is modelled as ``b + v m + c conj(m)`` (bias, the body-fixed vector,
+    and the counter-rotating part any scale or misalignment error adds) and ``b`` fitted by
+    weighted least squares over the samples present: the same value as the mean on a
+    complete revolution (the rotating sums vanish), exact with holes for a constant body
+    vector and any linear sensor error.
+    """
+    n = S.shape[0]
+    w, sm, sm2, smm = S[:, 0], S[:, 1], S[:, 2], S[:, 3]
+    A = np.empty((n, 3, 3), complex)
+    A[:, 0] = np.stack([w, sm, sm.conj()], axis=1)
+    A[:, 1] = np.stack([sm.conj(), smm, sm2.conj()], axis=1)
+    A[:, 2] = np.stack([sm, sm2, smm], axis=1)
+    rhs = np.stack([S[:, 4:7], S[:, 7:10]], axis=2)  # (n, 3, 2): gyro, accel
+    wr = np.where(w.real != 0, w.real, 1.0)  # all sums may carry the turning's sign
+    b = rhs[:, 0, :] / wr[:, None]  # the plain mean (no angle covered: zero)
+    # the fit where the window is well conditioned (a platform at rest has no rotation)
+    scale = wr[:, None, None]
+    ok = (w.real != 0) & (np.abs(np.linalg.det(A / scale)) > 1e-9)
+    if ok.any():
+        b[ok] = np.linalg.solve(A[ok], rhs[ok])[:, 0, :]
+    out = [np.outer(b[:, k].real, e1) + np.outer(b[:, k].imag, e2) for k in (0, 1)]
+    return out[0], out[1]
+
+
+def _revolution_bias(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: FloatArray,
+                     causal: bool, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Gyro and accel bias perpendicular to ``u`` over one revolution (eq. 12, fitted as in
+    :func:`_fit_bias`) for each ``centre`` angle, and the fraction of the revolution the
+    samples present cover (1 = no loss).
 
     Sample k covers the angle interval ``[phi0_k, phi1_k]``; the revolution is
     ``(c - 2 pi, c]`` (causal) or ``(c - pi, c + pi]``; it is clamped into the recording.
@@ -77,15 +144,14 @@ def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: 
     a0, a1 = sgn * phi0, sgn * phi1
     c = sgn * centre
     w = a1 - a0
-    cum_w = np.cumsum(w)
-    cum_x = np.cumsum(x * w[:, None], axis=0)
+    e1, e2 = _plane_basis(u)
+    F = _features(x, _rotating_mean(phi0, phi1), e1, e2)
+    cum = np.cumsum(F * w[:, None], axis=0)
     # knots at both ends of every sample: the cumulative sums rise inside a sample and stay
     # flat over the angle a lost stretch (a gap, CONTRACT 1) would have covered. (One knot
     # per sample end spread each sample after a gap over the gap's angle too.)
-    prev_w = np.concatenate([[0.0], cum_w[:-1]])
-    prev_x = np.concatenate([np.zeros((1, x.shape[1])), cum_x[:-1]])
-    cw = np.stack([prev_w, cum_w], axis=1).ravel()
-    cx = np.stack([prev_x, cum_x], axis=1).reshape(-1, x.shape[1])
+    prev = np.concatenate([np.zeros((1, F.shape[1]), complex), cum[:-1]])
+    ck = np.stack([prev, cum], axis=1).reshape(-1, F.shape[1])
     hi = c if causal else c + np.pi
     hi = np.clip(hi, a0[0] + 2 * np.pi, a1[-1])
     lo = hi - 2 * np.pi
@@ -93,10 +159,10 @@ def _revolution_mean(x: FloatArray, phi0: FloatArray, phi1: FloatArray, centre: 
     # partial samples at both ends by interpolation (end angles of a turning platform are
     # monotonic; np.maximum.accumulate guards against encoder jitter)
     edges = np.maximum.accumulate(np.stack([a0, a1], axis=1).ravel())
-    wsum = np.interp(hi, edges, cw) - np.interp(lo, edges, cw)
-    xs = np.stack([np.interp(hi, edges, cx[:, k]) - np.interp(lo, edges, cx[:, k])
-                   for k in range(x.shape[1])], axis=1)
-    return xs / np.where(wsum > 0, wsum, 1.0)[:, None]
+    S = np.stack([np.interp(hi, edges, ck[:, k]) - np.interp(lo, edges, ck[:, k])
+                  for k in range(F.shape[1])], axis=1)
+    bg, ba = _fit_bias(S, e1, e2)
+    return bg, ba, np.abs(S[:, 0].real) / (2 * np.pi)
 
 
 def _derotate(u: FloatArray, phi0: FloatArray, phi1: FloatArray, v_s: FloatArray) -> FloatArray:
@@ -134,12 +200,10 @@ def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
         accel = specific force, both in the body frame ``b``.
     """
     _, phi0, phi1, u = _setup(imu, joints, fixture, joint)
-    P = np.eye(3) - np.outer(u, u)
     gyro = np.asarray(imu.gyro_rad_s, float)
     accel = np.asarray(imu.accel_m_s2, float)
     centre = 0.5 * (phi0 + phi1)
-    bg = _revolution_mean(gyro, phi0, phi1, centre, causal) @ P
-    ba = _revolution_mean(accel, phi0, phi1, centre, causal) @ P
+    bg, ba, _ = _revolution_bias(np.hstack([gyro, accel]), phi0, phi1, centre, causal, u)
     dt = _intervals_ns(imu.stamps_ns)
     rate = ((phi1 - phi0) / (dt * 1e-9))[:, None] * u  # platform rate, same in s and b
     w_b = _derotate(u, phi0, phi1, gyro - bg - rate)
@@ -166,7 +230,6 @@ def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str
         raise InputError(f'--mode must be one of {sorted(MODES)} or continuous, got {mode!r}')
     n = MODES[mode]
     _, phi0, phi1, u = _setup(imu, joints, fixture, joint)
-    P = np.eye(3) - np.outer(u, u)
     gyro = np.asarray(imu.gyro_rad_s, float)
     accel = np.asarray(imu.accel_m_s2, float)
     sgn = 1.0 if phi1[-1] >= phi1[0] else -1.0
@@ -184,8 +247,7 @@ def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str
     # gyro's own averaging interval). The paper's step / time between crossings assumes a
     # constant rate: after a spin-up the first output was off by ~50 deg/s (one-point mode)
     rate = (phi1[idx] - phi0[idx]) / (_intervals_ns(imu.stamps_ns)[idx] * 1e-9)
-    bg = _revolution_mean(gyro, phi0, phi1, cp, True) @ P
-    ba = _revolution_mean(accel, phi0, phi1, cp, True) @ P
+    bg, ba, _ = _revolution_bias(np.hstack([gyro, accel]), phi0, phi1, cp, True, u)
     t = imu.stamps_ns[idx]
     R = rot_axis_angle(u, cp)
     w_b = np.einsum('nij,nj->ni', R, gyro[idx] - bg - rate[:, None] * u)
@@ -225,15 +287,25 @@ class StreamingDemodulator:
         Cap on the accumulated samples (the history is trimmed to the last 1.5 revolutions
         by angle; the cap only bounds a long stop). Must exceed twice the samples in one
         revolution (200 000: 1 kHz down to 3.6 deg/s).
+    min_coverage : float
+        Withhold (count in ``withheld_low_coverage``, return nothing for) an output whose
+        revolution window the samples present cover less than this fraction of (lost
+        samples, CONTRACT 1 gaps): the fitted bias (:func:`_fit_bias`) is exact for a constant
+        body vector but its noise grows as the hole widens. 0 withholds nothing (the offline
+        functions). Outputs fitted over a window with a loss are counted in
+        ``fitted_after_loss``; :attr:`last_coverage` is the latest output's coverage.
     """
 
     def __init__(self, axis_imu: Any, joint_name: str, mode: str = 'continuous',
-                 max_pending: int = 2000, max_history: int = 200_000) -> None:
+                 max_pending: int = 2000, max_history: int = 200_000,
+                 min_coverage: float = 0.0) -> None:
         if mode != 'continuous' and mode not in MODES:
             raise InputError(f'mode must be continuous, one, two or four, got {mode!r}')
         u = np.asarray(axis_imu, float).reshape(3)
         self.u = u / np.linalg.norm(u)
-        self._P = np.eye(3) - np.outer(self.u, self.u)
+        self._e1, self._e2 = _plane_basis(self.u)
+        self.min_coverage = float(min_coverage)
+        self.last_coverage = 1.0
         self.joint_name = joint_name
         self.mode = mode
         self._step = None if mode == 'continuous' else 2 * np.pi / MODES[mode]
@@ -246,14 +318,14 @@ class StreamingDemodulator:
         self._first: Any = None
         self._dt_nom_ns: float | None = None
         self._edges: list[float] = []  # raw joint angle at each accumulated sample's end
-        self._cw: list[float] = []  # cumulative angle at each knot (both ends per sample)
-        self._cx: list[FloatArray] = []  # cumulative angle-weighted gyro, accel at each knot
-        self._acc_w = 0.0
-        self._acc_x = np.zeros(6)
+        # cumulative angle-weighted fit terms (_features) at each knot (both ends per sample)
+        self._ck: list[NDArray[np.complex128]] = []
+        self._acc = np.zeros(10, complex)
         self._first_angle: float | None = None
         self._t_base_ns: int | None = None
         self.counters = {'imu_in': 0, 'joint_in': 0, 'published': 0, 'warming_up': 0,
-                         'dropped_no_joint_states': 0, 'out_of_order': 0, 'gaps': 0}
+                         'dropped_no_joint_states': 0, 'out_of_order': 0, 'gaps': 0,
+                         'lost_imu': 0, 'fitted_after_loss': 0, 'withheld_low_coverage': 0}
 
     # ------------------------------------------------------------------ input
     def push_joint(self, sample: Any) -> list[Any]:
@@ -292,6 +364,7 @@ class StreamingDemodulator:
             self._first = None
         elif dt > GAP_PERIODS * self._dt_nom_ns:  # CONTRACT 1: after a gap, its own period only
             self.counters['gaps'] += 1
+            self.counters['lost_imu'] += max(round(dt / self._dt_nom_ns) - 1, 1)
             dt = int(round(self._dt_nom_ns))
         self._last_stamp = int(sample.stamp_ns)
         self._pending.append((sample, dt))
@@ -312,17 +385,27 @@ class StreamingDemodulator:
                 out.append(r)
         return out
 
-    def _revolution_mean(self, centre: float, sgn: float) -> FloatArray:
-        """Angle-weighted mean over ``(centre - 2 pi, centre]`` (eq. 12), gyro and accel."""
+    def _revolution_bias(self, centre: float, sgn: float) -> tuple[FloatArray, FloatArray]:
+        """Gyro and accel bias perpendicular to the axis over ``(centre - 2 pi, centre]``
+        (eq. 12, fitted: :func:`_fit_bias`); sets :attr:`last_coverage`."""
         edges = np.maximum.accumulate(sgn * np.asarray(self._edges))
-        cw = np.asarray(self._cw)
-        cx = np.asarray(self._cx)
+        ck = np.asarray(self._ck)
         hi = sgn * centre
-        lo = hi - 2 * np.pi
-        wsum = np.interp(hi, edges, cw) - np.interp(lo, edges, cw)
-        xs = np.array([np.interp(hi, edges, cx[:, k]) - np.interp(lo, edges, cx[:, k])
-                       for k in range(6)])
-        return xs / wsum if wsum != 0 else xs
+        ends = np.array([hi - 2 * np.pi, hi])
+        S = np.array([np.interp(ends, edges, ck[:, k]) for k in range(ck.shape[1])])
+        S = (S[:, 1] - S[:, 0])[None, :]
+        self.last_coverage = abs(float(S[0, 0].real)) / (2 * np.pi)
+        bg, ba = _fit_bias(S, self._e1, self._e2)
+        return bg[0], ba[0]
+
+    def _withhold(self) -> bool:
+        """Count the latest output by its coverage; True if it is withheld."""
+        if self.last_coverage < self.min_coverage:
+            self.counters['withheld_low_coverage'] += 1
+            return True
+        if self.last_coverage < 1.0 - 1e-6:
+            self.counters['fitted_after_loss'] += 1
+        return False
 
     def _process(self, s: Any, dt_ns: int) -> Any:
         from ..types import ImuSample
@@ -339,34 +422,38 @@ class StreamingDemodulator:
         if self._first_angle is None:
             self._first_angle = phi0
         w = phi1 - phi0
-        # knots at both ends of the sample, flat over lost stretches (as offline)
-        acc_w, acc_x = self._acc_w + w, self._acc_x + np.concatenate([gyro, accel]) * w
+        # knots at both ends of the sample, flat over lost stretches (as offline); the
+        # weight is the signed angle (offline: times the recording's direction; the fit
+        # and the coverage do not depend on the sign of all the sums)
+        sgn = 1.0 if w >= 0 else -1.0
+        f = _features(np.concatenate([gyro, accel])[None], _rotating_mean(
+            np.array([phi0]), np.array([phi1])), self._e1, self._e2)[0]
+        acc = self._acc + f * w
         self._edges += [phi0, phi1]
-        self._cw += [self._acc_w, acc_w]
-        self._cx += [self._acc_x, acc_x]
-        self._acc_w, self._acc_x = acc_w, acc_x
+        self._ck += [self._acc, acc]
+        self._acc = acc
         # bounded history: only the last revolution is ever read; trim by angle (a count
         # derived from the current step grew without bound while the platform stood still)
         # and cap the count (a long stop between spins adds samples but no angle)
         if len(self._edges) > 64 and abs(phi1 - self._edges[len(self._edges) // 2]) > 3 * np.pi:
             half = len(self._edges) // 4 * 2  # whole samples (knot pairs)
-            del self._edges[:half], self._cw[:half], self._cx[:half]
+            del self._edges[:half], self._ck[:half]
         elif len(self._edges) > 2 * self.max_history:
             keep = self.max_history // 2 * 2
-            del self._edges[:-keep], self._cw[:-keep], self._cx[:-keep]
-        sgn = 1.0 if w >= 0 else -1.0
+            del self._edges[:-keep], self._ck[:-keep]
         full = sgn * (phi1 - self._first_angle) >= 2 * np.pi
         if self._step is None:
             centre = 0.5 * (phi0 + phi1)
             if not (full and sgn * (centre - self._first_angle) >= 2 * np.pi):
                 self.counters['warming_up'] += 1
                 return None
-            b = self._revolution_mean(centre, sgn)
+            bg, ba = self._revolution_bias(centre, sgn)
+            if self._withhold():
+                return None
             rate = w / (dt_ns * 1e-9) * self.u
             w_b = _derotate(self.u, np.array([phi0]), np.array([phi1]),
-                            (gyro - b[:3] @ self._P - rate)[None])[0]
-            f_b = _derotate(self.u, np.array([phi0]), np.array([phi1]),
-                            (accel - b[3:] @ self._P)[None])[0]
+                            (gyro - bg - rate)[None])[0]
+            f_b = _derotate(self.u, np.array([phi0]), np.array([phi1]), (accel - ba)[None])[0]
             self.counters['published'] += 1
             return ImuSample(int(s.stamp_ns), w_b, f_b, s.frame_id)
         k0 = np.floor(sgn * phi0 / self._step)
@@ -377,10 +464,12 @@ class StreamingDemodulator:
         if not full:
             self.counters['warming_up'] += 1
             return None
-        b = self._revolution_mean(cp, sgn)
+        bg, ba = self._revolution_bias(cp, sgn)
+        if self._withhold():
+            return None
         rate = w / (dt_ns * 1e-9)  # as offline: joint-angle rate over the sample interval
         R = rot_axis_angle(self.u, np.array(cp))
-        w_b = R @ (gyro - b[:3] @ self._P - rate * self.u)
-        f_b = R @ (accel - b[3:] @ self._P)
+        w_b = R @ (gyro - bg - rate * self.u)
+        f_b = R @ (accel - ba)
         self.counters['published'] += 1
         return ImuSample(int(s.stamp_ns), w_b, f_b, s.frame_id)
