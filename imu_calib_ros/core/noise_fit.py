@@ -17,7 +17,7 @@ The Allan variance of the five IEEE Std 952-1997 (annex C) processes adds up::
 (Greenhall's, ``allantools.edf_greenhall``, for the noise type that dominates there:
 the variance of an Allan variance estimate is ``2 avar^2 / edf``), reweighted from the model.
 Then, as IEEE 952's slope-region reading: a term counts as *shown* only where it makes at
-least half the variance at some tau; its 95 % interval comes from the chi-square interval of
+least half the variance at some tau and its interval excludes zero; its 95 % interval comes from the chi-square interval of
 the Allan variance at the tau where it is best seen (largest ``share^2 * edf``), divided by
 its share there (the other terms held), combined with the least-squares standard error
 widened for the correlation of neighbouring taus. A rate ramp is kept only when significant
@@ -203,9 +203,13 @@ def fit_axis(curve: AllanCurve, axis: int, max_bumps: int = 4) -> AxisFit:
             ls = Z95 * CORRELATED * se[j]
             c_lo = c[j] - math.hypot(c[j] * (1.0 - lo_r) / sh[i], ls)
             c_hi = c[j] + math.hypot(c[j] * (hi_r - 1.0) / sh[i], ls)
-            terms[name] = TermFit(name, variance_to_coefficient(name, c[j]),
-                                  variance_to_coefficient(name, c_lo),
-                                  variance_to_coefficient(name, c_hi), float(tau[i]))
+            if c_lo > 0:
+                terms[name] = TermFit(name, variance_to_coefficient(name, c[j]),
+                                      variance_to_coefficient(name, c_lo),
+                                      variance_to_coefficient(name, c_hi), float(tau[i]))
+            else:  # its interval reaches zero: not shown, its upper end is the bound
+                terms[name] = TermFit(name, None, None, variance_to_coefficient(name, c_hi),
+                                      None)
         else:
             hi_var = avar * edf / chi2.ppf(a, np.maximum(edf, 1e-3))
             bound = float(np.min((hi_var / A[:, j])[use])) if use.any() else math.inf
