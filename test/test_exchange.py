@@ -217,3 +217,35 @@ def test_cli_format_lists_match_core() -> None:
     assert importlib.import_module('imu_calib_ros.cli.import').FORMATS == exchange.FORMATS
     assert (importlib.import_module('imu_calib_ros.cli.export').OPENVINS_MODELS
             == exchange.OPENVINS_MODELS)
+
+
+def test_readme_after_calibration_commands_run(tmp_path) -> None:
+    """The README's noise and export/import commands run on a simulated bag (the truth file
+    stands in for run/calib.yaml) and write what they say."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    from imu_calib_ros.cli import main
+    readme = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+    section = readme.split('## After calibration', 1)[1].split('\n## ', 1)[0]
+    blocks = re.findall(r'```bash\n(.*?)```', section, re.S)
+    cmds = [shlex.split(ln) for b in blocks for ln in re.sub(r'\\\n\s*', ' ', b).splitlines()
+            if ln.strip()]
+    assert [c[1] for c in cmds] == ['noise', 'export', 'export', 'export', 'import']
+    run = tmp_path / 'run'
+    run.mkdir()
+    assert main(['simulate', '--fixture', 'three_axis', '--plan', 'demo_short', '--imu',
+                 'mems_mti1', '--rate', '50', '--seed', '1', '--output', str(run / 'bag'),
+                 '--truth', str(run / 'calib.yaml')]) == 0
+    import os
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        for c in cmds:
+            assert main(c[1:]) == 0, c
+    finally:
+        os.chdir(cwd)
+    for f in ('noise.yaml', 'imu.yaml', 'noise.html', 'kalibr.yaml', 'kalibr_imu_chain.yaml',
+              'imu_tk_acc.calib', 'imu_tk_gyro.calib', 'from_kalibr.yaml'):
+        assert (run / f).is_file(), f
