@@ -135,8 +135,9 @@ def run(args: Any) -> int:
             try:
                 r = fut.result()
             except Exception as exc:  # the worker died (KilledWorker) or the task was lost
+                first = str(exc).splitlines()[0] if str(exc) else ''
                 r = {'status': 'failed', 'seconds': 0.0,
-                     'reason': f'{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ""}'}
+                     'reason': f'{type(exc).__name__}: {first}'}
             calib = None
             path = out_dir / f'{u}.yaml'
             if r['status'] == 'ok':

@@ -120,7 +120,8 @@ def not_held(errors: SensorErrors, fmt: str) -> list[str]:
         checks += [('gyroscope.scale_misalignment', e.gyro_scale_misalignment),
                    ('gyroscope.bias', e.gyro_bias_rad_s)]
     if fmt in ('kalibr', 'openvins'):
-        checks += [('gyroscope.bias', e.gyro_bias_rad_s), ('accelerometer.bias', e.accel_bias_m_s2)]
+        checks += [('gyroscope.bias', e.gyro_bias_rad_s),
+                   ('accelerometer.bias', e.accel_bias_m_s2)]
     for key, v in checks:
         if np.any(np.asarray(v) != 0.0):
             out.append(key)

@@ -17,12 +17,13 @@ The Allan variance of the five IEEE Std 952-1997 (annex C) processes adds up::
 (Greenhall's, ``allantools.edf_greenhall``, for the noise type that dominates there:
 the variance of an Allan variance estimate is ``2 avar^2 / edf``), reweighted from the model.
 Then, as IEEE 952's slope-region reading: a term counts as *shown* only where it makes at
-least half the variance at some tau and its interval excludes zero; its 95 % interval comes from the chi-square interval of
-the Allan variance at the tau where it is best seen (largest ``share^2 * edf``), divided by
-its share there (the other terms held), combined with the least-squares standard error
-widened for the correlation of neighbouring taus. A rate ramp is kept only when significant
-(it is a drift, not a noise). A term the record does not show gets no value, only
-a 95 % upper bound (the smallest ``avar_upper(tau) / f(tau)``) and a warning.
+least half the variance at some tau and its interval excludes zero; its 95 % interval comes
+from the chi-square interval of the Allan variance at the tau where it is best seen (largest
+``share^2 * edf``), divided by its share there (the other terms held), combined with the
+least-squares standard error widened for the correlation of neighbouring taus. A rate ramp
+is kept only when significant (it is a drift, not a noise). A term the record does not show
+gets no value, only a 95 % upper bound (the upper end of its interval when that reaches zero,
+else the smallest ``avar_upper(tau) / f(tau)``) and a warning.
 
 Never a line through a bump: taus where the measured curve stands out of the fitted model by
 more than 4 of its standard errors *and* 15 % in variance (a vibration line, a tilt step)

@@ -50,13 +50,14 @@ def noise_report_html(result: Any, bag: str) -> str:
                         + ''.join(f'<td>{c}</td>' for c in cells) + '</tr>')
     warn = ''.join(f'<li>{html.escape(w)}</li>' for w in result.warnings()) or '<li>none</li>'
     c = result.curve
+    tau_lo, tau_hi = (c.tau_s[0], c.tau_s[-1]) if len(c.tau_s) else (np.nan, np.nan)
     return f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>IMU noise</title>
 <style>body{{font-family:sans-serif;margin:2em}}td,th{{border:1px solid #ccc;padding:2px 6px}}
 table{{border-collapse:collapse}}</style></head><body>
 <h1>IMU noise characterisation</h1>
 <p>bag {html.escape(str(bag))}: {html.escape(result.source)}, {c.duration_s:.0f} s,
 {c.n_samples} samples at {result.rate_hz:.6g} Hz; {len(c.tau_s)} taus from
-{c.tau_s[0] if len(c.tau_s) else np.nan:.3g} s to {c.tau_s[-1] if len(c.tau_s) else np.nan:.3g} s.</p>
+{tau_lo:.3g} s to {tau_hi:.3g} s.</p>
 {allan_figure(result)}
 <h2>Terms (IEEE Std 952-1997 annex C), 95 % intervals</h2>
 <table><tr><th>sensor</th><th>term</th><th>unit</th><th>x</th><th>y</th><th>z</th></tr>
