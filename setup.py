@@ -26,7 +26,7 @@ setup(
         ('share/' + PACKAGE + '/docs', ['docs/CONTRACT.md']),
     ],
     include_package_data=True,
-    install_requires=['setuptools', 'yourdfpy==0.0.60'],
+    install_requires=['setuptools', 'yourdfpy==0.0.60', 'distributed==2026.8.0'],
     zip_safe=True,
     maintainer='imu_calib_ros developers',
     maintainer_email='dev@imu-calib-ros.invalid',

@@ -18,7 +18,7 @@ from typing import Any
 
 from ..core.errors import ImuCalibError, InputError
 
-SUBCOMMANDS = ('simulate', 'replay', 'report', 'modulate')
+SUBCOMMANDS = ('simulate', 'replay', 'report', 'modulate', 'noise', 'export', 'import', 'batch')
 
 #: Where "CONTRACT n" in the help texts points (the external contract, in the repository).
 CONTRACT_NOTE = ('"CONTRACT n" is section n of the external contract: docs/CONTRACT.md in the '
