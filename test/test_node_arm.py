@@ -153,6 +153,61 @@ def test_calibration_node_on_the_arm_from_robot_description(ros: Node, tmp_path:
         assert np.all(shrink < 0.15), (key, shrink)
 
 
+def _run(module: str, params: dict[str, Any], cwd: Path,
+         timeout_s: float = 60.0) -> tuple[int, str]:
+    """Run a node to its end (it should refuse to start); exit status and output."""
+    cmd = [sys.executable, '-m', f'imu_calib_ros.nodes.{module}', '--ros-args']
+    for k, v in params.items():
+        cmd += ['-p', f'{k}:={v}']
+    try:
+        out = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired as exc:
+        raise AssertionError(f'{module} still running: {exc.stdout!r} {exc.stderr!r}') from None
+    return out.returncode, out.stdout + out.stderr
+
+
+def test_fixture_parameters_refusals_and_site_override(ros: Node, tmp_path: Path) -> None:
+    """fixture:=robot_description: one line and exit 2 when no URDF comes, or its links are
+    wrong; the site parameters override <imu_calib_site>; URDF parameters with a YAML
+    fixture are refused (they would be ignored)."""
+    from std_msgs.msg import String
+
+    from imu_calib_ros.nodes.common import latched_qos
+    rc, log = _run('calibration', {'fixture': 'robot_description',
+                                   'robot_description_timeout_s': 1.0}, tmp_path)
+    assert rc == 2, log
+    err = [ln for ln in log.splitlines() if ln.startswith('calibration: error:')]
+    assert len(err) == 1 and 'no URDF on /robot_description within 1 s' in err[0], log
+    rc, log = _run('turntable_sim', {'fixture': 'three_axis', 'imu_link': 'imu_link'}, tmp_path)
+    assert rc == 2 and 'imu_link applies to a URDF fixture only' in log, log
+    desc = ros.create_publisher(String, 'robot_description', latched_qos())
+    desc.publish(String(data=ARM.read_text()))
+    try:
+        rc, log = _run('calibration', {'fixture': 'robot_description', 'imu_link': 'tool9'},
+                       tmp_path)
+        assert rc == 2, log
+        err = [ln for ln in log.splitlines() if ln.startswith('calibration: error:')]
+        assert len(err) == 1, log
+        assert "<robot_description>: imu_link: no link 'tool9' (links: base_link" in err[0]
+        # the driver too takes the URDF from the topic; the site override shows in its line
+        plan = tmp_path / 'plan.yaml'
+        plan.write_text('name: p\nsteps:\n  - dwell: {duration_s: 60}\n')
+        drv = start_node('turntable_driver', {'fixture': 'robot_description', 'plan': str(plan),
+                                              'site_latitude_deg': -33.5,
+                                              'site_base_rpy_deg': '[0.0, 0.0, 90.0]',
+                                              'wait_for_subscribers': 5,
+                                              'wait_timeout_s': 60.0}, tmp_path)
+        try:
+            import time
+            time.sleep(6.0)
+        finally:
+            log = stop_node(drv, wait_s=10.0)
+        assert re.search(r'fixture from URDF <robot_description>: chain base_link -> '
+                         r'imu_link, 6 joints .*site latitude -33.5 deg', log), log
+    finally:
+        ros.destroy_publisher(desc)
+
+
 def _run_driver(tmp_path: Path, params: dict[str, Any]) -> tuple[int, str]:
     cmd = [sys.executable, '-m', 'imu_calib_ros.nodes.turntable_driver', '--ros-args']
     for k, v in params.items():
