@@ -114,6 +114,11 @@ def test_help_never_calls_rclpy_init(monkeypatch: pytest.MonkeyPatch,
     ('turntable_sim', ['plan:=demo_short', 'sped:=4.0'], 'speed'),
     ('modulation', ['fixture:=three_axis', 'jiont:=inner'], 'joint'),
     ('bag_player', ['bag:=b', 'rat:=4.0'], 'rate'),
+    # the URDF fixture parameters (issue 15), in the three nodes that take a fixture
+    ('calibration', ['fixture:=arm6.urdf', 'imu_lnk:=imu_link'], 'imu_link'),
+    ('turntable_driver', ['fixture:=arm6.urdf', 'plan:=demo_short', 'base_lnk:=base_link'],
+     'base_link'),
+    ('turntable_sim', ['fixture:=arm6.urdf', 'site_latitude:=10.0'], 'site_latitude_deg'),
 ])
 def test_unknown_parameter_is_refused_naming_the_nearest(name: str, params: list[str],
                                                          nearest: str, tmp_path: Path) -> None:

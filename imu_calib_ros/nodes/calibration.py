@@ -65,6 +65,7 @@ from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, d
                      diag9, finite, finite3, latched_qos, quiet_publisher, reliable_qos,
                      run_node, sensor_qos)
 from .estimator_runner import EstimatorRunner, Snapshot
+from .fixture_source import load_node_fixture, urdf_field
 
 NODE_NAME = 'calibration'
 
@@ -102,9 +103,18 @@ class CalibrationNodeConfig:
     """Parameters of the calibration node (``config/calibration_node.yaml``)."""
 
     fixture: str = field(default='', metadata={
-        'doc': 'fixture file (CONTRACT 2) of the table in use, or a shipped fixture name '
-               '(three_axis, savage_2axis)',
+        'doc': 'fixture file (CONTRACT 2 YAML or a .urdf) of the table or arm in use, a shipped'
+               ' fixture name (three_axis, savage_2axis, arm6.urdf), or robot_description: the'
+               ' URDF from the robot_description topic (issue 15)',
         'required': "a calibration against another table's kinematics is silently wrong"})
+    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
+    base_link: str = urdf_field('base_link')
+    imu_link: str = urdf_field('imu_link')
+    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
+    site_height_m: float | None = urdf_field('site_height_m')
+    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
+    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
+    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     imu_grade: str = field(default='', metadata={
         'doc': 'optional IMU grade hint (config/imus name or path): prior floors; empty = '
                'none, everything measured from the data (issue 11)'})
@@ -183,12 +193,10 @@ class CalibrationNode(Node):
         super().__init__(NODE_NAME)
         self.config: CalibrationNodeConfig = declare_config(self, CalibrationNodeConfig)
         cfg = self.config
-        from ..core.config import resolve_config_file
         from ..core.estimator import CalibrationEstimator
-        from ..core.fixture import Fixture
         from ..core.imu_grade import load_grade
-        fixture_file = resolve_config_file(cfg.fixture, 'fixtures')
-        self.fixture = Fixture.from_yaml(fixture_file)
+        # a file, a shipped name, or the robot_description topic (waits; one line either way)
+        self.fixture = load_node_fixture(self, cfg)
         self.grade = load_grade(cfg.imu_grade) if cfg.imu_grade else None
         self.joint_names = tuple(self.fixture.joint_names)
         self.frame_id = cfg.frame_id
@@ -202,7 +210,7 @@ class CalibrationNode(Node):
             1.0 / cfg.imu_rate_hz if cfg.imu_rate_hz > 0 else 0.0)
         self._rate_known = False
         self.runner = EstimatorRunner(cfg.estimator_mode,
-                                      (str(fixture_file), cfg.imu_grade, cfg.estimator),
+                                      (self.fixture, cfg.imu_grade, cfg.estimator),
                                       cfg.frame_id or 'imu_link', cfg.estimator_queue_batches)
         self._good_seq = -1
         # filled by the IMU input thread and the joint callback, drained by the filter timer
@@ -650,6 +658,9 @@ INTERFACE = NodeInterface(
                  'raw IMU, interval means (CONTRACT 1); sensor-data QoS'),
         Endpoint('joint_states', 'sensor_msgs/msg/JointState',
                  'positions of the fixture joints; sensor-data QoS'),
+        Endpoint('robot_description', 'std_msgs/msg/String',
+                 'with fixture:=robot_description only: the URDF, once at start (reliable, '
+                 'transient local, as robot_state_publisher publishes it)'),
         Endpoint('/clock', 'rosgraph_msgs/msg/Clock', 'with use_sim_time:=true')),
     publishes=(
         Endpoint('imu/data_corrected', 'sensor_msgs/msg/Imu',

@@ -319,7 +319,8 @@ def parameter_help(cls: type[Any], prefix: str = '', defaults: Any = None) -> li
             lines += parameter_help(base, f'{name}.', default)
             continue
         desc = _descriptor(f, tp, name)
-        shown = 'required' if f.metadata.get('required') else f'default {_ros_text(default)}'
+        shown = 'required' if f.metadata.get('required') else \
+            'unset by default' if default is None else f'default {_ros_text(default)}'
         head = f'{name} ({_TYPE_NAMES[Parameter.Type(desc.type)]}, {shown}'
         head += f'; {desc.additional_constraints})' if desc.additional_constraints else ')'
         text = desc.description

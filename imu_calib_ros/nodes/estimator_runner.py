@@ -76,14 +76,18 @@ def is_diverged(health: dict[str, Any], result: Any) -> bool:
     return False
 
 
-def make_estimator(spec: tuple[str, str, Any]) -> Any:
-    """Build a :class:`CalibrationEstimator` from ``(fixture file, grade, EstimatorConfig)``."""
+def make_estimator(spec: tuple[Any, str, Any]) -> Any:
+    """Build a :class:`CalibrationEstimator` from ``(fixture, grade, EstimatorConfig)``; the
+    fixture a :class:`~imu_calib_ros.core.fixture.Fixture` (pickled to the child: a URDF
+    from robot_description has no file) or a CONTRACT 2 file."""
     from ..core.estimator import CalibrationEstimator
     from ..core.fixture import Fixture
     from ..core.imu_grade import load_grade
-    fixture_path, grade_name, config = spec
+    fixture, grade_name, config = spec
     grade = load_grade(grade_name) if grade_name else None
-    return CalibrationEstimator(Fixture.from_yaml(fixture_path), grade, config)
+    if not isinstance(fixture, Fixture):
+        fixture = Fixture.from_yaml(fixture)
+    return CalibrationEstimator(fixture, grade, config)
 
 
 def reset_navigation(estimator: Any) -> Any:
@@ -318,7 +322,7 @@ class _ChildProcess:
     spawn would re-import the node's ``__main__`` (rclpy and all) in the child.
     """
 
-    def __init__(self, spec: tuple[str, str, Any], frame_id: str, max_batches: int):
+    def __init__(self, spec: tuple[Any, str, Any], frame_id: str, max_batches: int):
         import pickle
         import subprocess
         import sys
@@ -374,7 +378,7 @@ class EstimatorRunner:
     Parameters
     ----------
     mode : {'process', 'thread'}
-    spec : (fixture file, grade name or path, EstimatorConfig)
+    spec : (Fixture or fixture file, grade name or path, EstimatorConfig)
         What the estimator is built from (:func:`make_estimator`); in ``'thread'`` mode a
         ``factory`` may replace it (tests).
     frame_id : str
@@ -383,7 +387,7 @@ class EstimatorRunner:
         Queue bound (batches): a full queue drops the batch (counted in :attr:`dropped`).
     """
 
-    def __init__(self, mode: str, spec: tuple[str, str, Any] | None, frame_id: str,
+    def __init__(self, mode: str, spec: tuple[Any, str, Any] | None, frame_id: str,
                  max_batches: int = 50, factory: Callable[[], Any] | None = None):
         if mode not in ('process', 'thread'):
             raise ValueError(f'estimator mode must be process or thread, got {mode!r}')

@@ -17,6 +17,12 @@ or no joint states came).
 
 Run: ``turntable_driver --ros-args -p plan:=savage_srt -p fixture:=my_table.yaml
 -r joint_trajectory:=/joint_trajectory_controller/joint_trajectory``.
+
+A robot arm is driven the same way (issue 15): ``fixture`` a ``.urdf`` (with ``base_link``,
+``imu_link``) or ``robot_description``; the trajectory carries the chain's joint names, and a
+plan that would leave a URDF position or velocity limit from where the arm is is refused
+before anything is sent (``core.plans.build_profile`` names the joint and the limit; exit
+status 2).
 """
 from __future__ import annotations
 
@@ -32,11 +38,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from ..core.errors import ImuCalibError
+from ..core.errors import ImuCalibError, PlanError
 from ..core.types import FloatArray
 from ..msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      sensor_qos)
+from .fixture_source import load_node_fixture, urdf_field
 
 NODE_NAME = 'turntable_driver'
 
@@ -46,9 +53,18 @@ class TurntableDriverConfig:
     """Parameters of the turntable driver node."""
 
     fixture: str = field(default='', metadata={
-        'doc': 'fixture file (CONTRACT 2) of the table to drive, or a shipped fixture name '
-               '(joint names and axes)',
+        'doc': 'fixture file (CONTRACT 2 YAML or a .urdf) of the table or arm to drive, a '
+               'shipped fixture name, or robot_description (the URDF on that topic): joint '
+               'names, axes and limits',
         'required': "another table's joint names and axes would move this one"})
+    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
+    base_link: str = urdf_field('base_link')
+    imu_link: str = urdf_field('imu_link')
+    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
+    site_height_m: float | None = urdf_field('site_height_m')
+    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
+    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
+    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     plan: str = field(default='', metadata={
         'doc': 'motion plan (config/plans name, e.g. savage_srt, or path)',
         'required': 'this node moves hardware'})
@@ -125,10 +141,8 @@ class TurntableDriverNode(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         self.config: TurntableDriverConfig = declare_config(self, TurntableDriverConfig)
-        from ..core.config import resolve_config_file
-        from ..core.fixture import Fixture
         from ..core.plans import load_plan
-        self.fixture = Fixture.from_yaml(resolve_config_file(self.config.fixture, 'fixtures'))
+        self.fixture = load_node_fixture(self, self.config)
         self.plan = load_plan(self.config.plan)
         self._pub = self.create_publisher(JointTrajectory, 'joint_trajectory', reliable_qos())
         self.create_subscription(JointState, 'joint_states', self._on_joints, sensor_qos(50))
@@ -199,7 +213,12 @@ class TurntableDriverNode(Node):
         q0 = self._q_now if self._q_now is not None else np.zeros(self.fixture.n_joints)
         if self._q_now is None:
             self.get_logger().warn('no joint_states received: assuming the table is at zero')
-        self._profile = build_profile(self.plan, self.fixture, q_start_rad=q0)
+        try:  # on a URDF chain: refused naming the joint and the limit (nothing is sent)
+            self._profile = build_profile(self.plan, self.fixture, q_start_rad=q0)
+        except PlanError as exc:
+            self.done = True  # nothing moved: not "interrupted"
+            raise PlanError(f'plan refused, nothing sent to {self._pub.topic_name}: {exc}') \
+                from None
         msg = trajectory_from_profile(self._profile, self.config.point_period_s,
                                       self.config.lead_in_s)
         self._t0_ns = self.get_clock().now().nanoseconds
@@ -218,13 +237,17 @@ INTERFACE = NodeInterface(
             '(positions, velocities, accelerations) from where the table is, follows the joint '
             'states, and exits 0 only if the table followed the plan.',
     subscribes=(Endpoint('joint_states', 'sensor_msgs/msg/JointState',
-                         'where the table is, and how it follows'),),
+                         'where the table is, and how it follows'),
+                Endpoint('robot_description', 'std_msgs/msg/String',
+                         'with fixture:=robot_description only: the URDF, once at start '
+                         '(reliable, transient local)')),
     publishes=(Endpoint('joint_trajectory', 'trajectory_msgs/msg/JointTrajectory',
                         'the plan; remap to the controller, e.g. '
                         '/joint_trajectory_controller/joint_trajectory'),),
     notes='Exit status: 0 the table followed the plan; 1 tracking error above '
           'max_tracking_error_deg, no joint state in the plan\'s window, or interrupted; '
-          '2 bad parameter or file.')
+          '2 bad parameter or file, or a plan refused (on a URDF chain: a step would leave a '
+          'joint\'s position or velocity limit; nothing is sent).')
 
 
 def main(args: list[str] | None = None) -> int:

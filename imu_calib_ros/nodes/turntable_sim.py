@@ -36,6 +36,7 @@ from ..core.types import FloatArray, ImuBatch, JointBatch
 from ..msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      time_msg_from_ns)
+from .fixture_source import load_node_fixture, urdf_field
 
 NODE_NAME = 'turntable_sim'
 
@@ -45,7 +46,16 @@ class TurntableSimConfig:
     """Parameters of the turntable simulator node (``config/turntable_sim.yaml``)."""
 
     fixture: str = field(default='three_axis', metadata={
-        'doc': 'fixture file (CONTRACT 2) or shipped fixture name'})
+        'doc': 'fixture file (CONTRACT 2 YAML or a .urdf), shipped fixture name (three_axis, '
+               'savage_2axis, arm6.urdf), or robot_description (the URDF on that topic)'})
+    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
+    base_link: str = urdf_field('base_link')
+    imu_link: str = urdf_field('imu_link')
+    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
+    site_height_m: float | None = urdf_field('site_height_m')
+    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
+    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
+    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     imu_grade: str = field(default='nav_grade', metadata={
         'doc': 'IMU grade (config/imus name or path): noise and error magnitudes'})
     plan: str = field(default='', metadata={
@@ -187,11 +197,8 @@ class TurntableSimNode(Node):
         super().__init__(NODE_NAME)
         self.config: TurntableSimConfig = declare_config(self, TurntableSimConfig)
         cfg = self.config
-        from ..core import fixture as fixture_mod
-        from ..core.config import resolve_config_file
         from ..core.imu_grade import load_grade
-        self.fixture = fixture_mod.Fixture.from_yaml(resolve_config_file(cfg.fixture,
-                                                                         'fixtures'))
+        self.fixture = load_node_fixture(self, cfg)
         self.grade = load_grade(cfg.imu_grade)
         self.joint_names: tuple[str, ...] = tuple(self.fixture.joint_names)
         self._truth_errors: Any = None
@@ -441,7 +448,10 @@ INTERFACE = NodeInterface(
             'JointTrajectory commands like a ros2_control joint trajectory controller, and '
             'publishes the exact simulated IMU and joint states with /clock. Moves no hardware.',
     subscribes=(Endpoint('joint_trajectory', 'trajectory_msgs/msg/JointTrajectory',
-                         'commands, when no plan is given'),),
+                         'commands, when no plan is given'),
+                Endpoint('robot_description', 'std_msgs/msg/String',
+                         'with fixture:=robot_description only: the URDF, once at start '
+                         '(reliable, transient local)')),
     publishes=(
         Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu', 'simulated raw IMU (CONTRACT 1)'),
         Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'simulated encoders'),
