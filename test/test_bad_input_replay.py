@@ -214,3 +214,6 @@ def test_wrong_fixture_is_one_line(bags: Path, tmp_path: Path, capsys) -> None:
                         '--output', str(out), '--quiet'], capture_output=True, text=True,
                        timeout=300)
     check_failed(p.returncode, p.stderr.strip(), out, 'fixture')
+    # issue 16 item 5: the line names the joint the bag moves and the fixture lacks
+    assert "the bag's joint 'middle' moves but the fixture has no such joint" in p.stderr, \
+        p.stderr

@@ -107,6 +107,32 @@ def _with_provenance(calib: Any, args: Any, stats: dict[str, ReorderStats]) -> A
     return dataclasses.replace(calib, extra=extra)
 
 
+def _joints_the_fixture_lacks(args: Any, fixture: Any) -> str:
+    """'the bag's joint(s) X move(s) but the fixture has no such joint' when the bag moves
+    joints the fixture does not list (CONTRACT 1 ignores unknown joints, so a fixture of the
+    wrong table shows only as rotations the fit cannot explain), else ''."""
+    import numpy as np
+
+    from ..msg_adapters.bag import read_bag
+    try:
+        _, joints = read_bag(args.bag, args.imu_topic, args.joint_topic, args.reorder_window)
+    except Exception:  # noqa: BLE001 - a hint only; the original error stands
+        return ''
+    if not len(joints):
+        return ''
+    known = set(fixture.joint_names)
+    q = np.unwrap(np.asarray(joints.positions_rad, float), axis=0)
+    travel = np.nanmax(q, axis=0) - np.nanmin(q, axis=0)
+    extra = [n for n, d in zip(joints.names, travel, strict=True)
+             if n not in known and d > 0.01]
+    if not extra:
+        return ''
+    names = ', '.join(repr(n) for n in extra)
+    return (f"the bag's joint{'s' if len(extra) > 1 else ''} {names} move"
+            f"{'' if len(extra) > 1 else 's'} but the fixture has no such joint "
+            f"(fixture joints: {', '.join(fixture.joint_names)})")
+
+
 def run(args: Any) -> int:
     """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
     from ..core.fixture import load_fixture
@@ -159,6 +185,11 @@ def run(args: Any) -> int:
         try:
             run_ = replay_run(open_bag, fixture, grade, config, args.iterations,
                               progress=bar.update if bar is not None else None)
+        except InputError as exc:  # name a joint the bag moves and the fixture lacks
+            hint = _joints_the_fixture_lacks(args, fixture)
+            if hint:
+                raise InputError(f'{exc}; {hint}') from None
+            raise
         finally:
             if bar is not None:
                 bar.close()
