@@ -195,8 +195,14 @@ def bench_bag(a: Any, fx: Any, grade: Any, sim: Any, reps: int) -> None:
             out = Path(tempfile.gettempdir()) / 'imu_calib_bench_calib.yaml'
             extra = [] if run == 'cli' else ['--iterations', run]
             passes = 1 if run == 'cli' else int(run)
+            # --force: the data are one simulated loop replayed with shifted stamps, so the
+            # truth's bias walk jumps back at every join and the self-check (rightly) sees
+            # stationary windows that disagree (4.8 sigma along gyro_asymmetry[2], on the
+            # code before issue 11's session 4 too); this run times the command, the
+            # self-check's verdict on real data is bench_selfcheck's
             rc = cli_main(['replay', str(path), '--fixture', 'three_axis', '--imu', 'nav_grade',
-                           '--config', str(yaml), '--output', str(out), '--quiet', *extra])
+                           '--config', str(yaml), '--output', str(out), '--quiet', '--force',
+                           *extra])
             assert rc == 0, rc
             est = None
             what = ('imu-calib replay (CLI defaults: 1 pass, in process)' if run == 'cli'
