@@ -65,7 +65,7 @@ def test_ekf_and_oscillation_agree_on_size_effect(tmp_path: Path) -> None:
     # A methods cross-check on Kozlov's plan alone, with the grade's prior (no coarse start).
     # Open (issue 11 note): from the coarse start this plan separates neither accelerometer
     # scale from asymmetry (collinear at the three vertical poses) and the filter re-aligns
-    # 19 times, leaving the size effect at its prior; with the grade-centred start it does not.
+    # 19-24 times, leaving the size effect at its prior; with the grade-centred start it does not.
     cfg = tmp_path / 'grade_start.yaml'
     cfg.write_text('auto_start: false\nnoise_source: grade\n')
     # --force: the self-check (issue 17) refuses this EKF run too (gated updates, window
