@@ -359,10 +359,15 @@ def _split_blocks(blocks: list[_Block], n: int) -> tuple[list[_Block], list[_Blo
             (b.clocks < clocks[k]) | ((b.clocks == clocks[k]) & (b.starts <= starts[k]))))
         if m:
             head.append(_Block(b.conn, b.buf, b.starts[:m], b.lengths[:m], b.clocks[:m]))
-        if m < len(b.starts):  # compacted: the chunk's buffer is not kept for the next window
-            mv = memoryview(b.buf)
-            raws = [mv[x:x + ln] for x, ln in zip(b.starts[m:].tolist(), b.lengths[m:].tolist())]
-            tail.append(_block_of(b.conn, raws, b.clocks[m:]))
+        if m < len(b.starts):  # copied: the chunk's buffer is not kept for the next window
+            at, size = b.starts[m:], b.lengths[m:]
+            lo, hi = int(at.min()), int((at + size).max())
+            if hi - lo <= 2 * int(size.sum()):  # the chunk's end, as writers lay it out
+                tail.append(_Block(b.conn, b.buf[lo:hi].copy(), at - lo, size, b.clocks[m:]))
+            else:
+                mv = memoryview(b.buf)
+                tail.append(_block_of(b.conn, [mv[x:x + n] for x, n in zip(
+                    at.tolist(), size.tolist())], b.clocks[m:]))
     return head, tail
 
 

@@ -163,27 +163,22 @@ def _gather(buf: U8Array, at: IntArray, width: int) -> U8Array:
     return buf[at[:, None] + np.arange(width)]
 
 
+def _windows(buf: Any, width: int) -> U8Array:
+    """Row p = ``buf[p : p + width]``: a zero-copy strided view of the bytes."""
+    b = buf if isinstance(buf, np.ndarray) else np.frombuffer(buf, np.uint8)
+    return np.lib.stride_tricks.as_strided(b, (max(len(b) - width + 1, 0), width), (1, 1),
+                                           writeable=False)
+
+
 def read_at(buf: Any, at: IntArray, dtype: str, count: int = 1) -> NDArray[Any]:
     """``count`` values of ``dtype`` (little-endian, any alignment) starting at each byte
     offset ``at[k]`` of ``buf``, as an ``(N, count)`` array.
 
-    Reads through one zero-copy view of ``buf`` per alignment class instead of gathering
-    bytes, so the temporary index arrays hold ``count`` entries per message, not one per
-    byte (bounded memory per mcap chunk).
+    Takes rows of a strided view of the bytes (one row per offset), so the temporaries are
+    the values' own bytes plus one index per message (bounded memory per mcap chunk).
     """
     dt = np.dtype(dtype)
-    size = dt.itemsize
-    out = np.empty((len(at), count), dt)
-    nbytes = len(buf)
-    if not len(at):
-        return out
-    mis = at % size
-    for a in np.unique(mis).tolist():
-        sel = mis == a
-        view = np.frombuffer(buf, dt, (nbytes - a) // size, a)
-        idx = at[sel] // size
-        out[sel] = view[idx[:, None] + np.arange(count)]
-    return out
+    return _windows(buf, dt.itemsize * count)[at].view(dt)
 
 
 @dataclass
@@ -227,7 +222,9 @@ def decode_imu(buf: U8Array, starts: Any, lengths: Any) -> ImuColumns:
     accel = read_at(buf, at + 8 * IMU_ACCEL, '<f8', 3).astype(np.float64)
     frame = np.zeros(n, np.int64)
     frame_ids: list[str] = []
-    for length in np.unique(flen[ok]).tolist():
+    lengths = flen[ok]
+    for length in (lengths[:1] if (lengths == lengths[:1]).all() else
+                   np.unique(lengths)).tolist():
         sel = np.flatnonzero(ok & (flen == length))
         text = _gather(buf, s[sel] + 16, length - 1) if length > 1 else \
             np.zeros((len(sel), 0), np.uint8)
@@ -394,9 +391,7 @@ def decode_joint_rows(rows: U8Array) -> tuple[IntArray, tuple[str, ...],
 
 def gather_rows(buf: U8Array, starts: Any, length: int) -> U8Array:
     """Messages of one length as rows: ``buf[starts[k] : starts[k] + length]``."""
-    mv = memoryview(buf)
-    rows = b''.join([mv[s:s + length] for s in np.asarray(starts, np.int64).tolist()])
-    return np.frombuffer(rows, np.uint8).reshape(-1, length)
+    return _windows(buf, length)[np.asarray(starts, np.int64)]
 
 
 __all__ = ['CDR_LE', 'ImuColumns', 'NS_PER_S', 'check_stamps', 'decode_imu',
