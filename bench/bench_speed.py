@@ -26,9 +26,10 @@ the way ``imu-calib replay`` does it: first one pass of ``replay.replay`` over
 (one pass; ``--passes 1,cli,2`` adds a two-pass run), all with every group estimated (incl.
 the time offset). Prints CPU and wall time, samples/s, RSS sampled during the replay (after
 10 % of the bag and at the end: it must not grow with the bag's length), the peak RSS of the
-process, and a SUMMARY line per run against issue 14's targets (one hour of 200 Hz in <= 5 s, of 2 kHz in <= 30 s). ``--passes read``
-times the bag reader alone (``iter_bag(bag).batches()``, what replay reads): the reader's
-share of the end-to-end figure. Once the bag is cached, nothing is simulated.
+process, and a SUMMARY line per run against issue 14's targets (one hour of 200 Hz in <= 5 s,
+of 2 kHz in <= 30 s). ``--passes read`` times the bag reader alone
+(``iter_bag(bag).batches()``, what replay reads): the reader's share of the end-to-end
+figure. Once the bag is cached, nothing is simulated.
 
 ``--reader`` (issue 17): the bag reader alone on a 2 kHz bag (IMU 2 kHz, joint states 100
 Hz, cached in ``/tmp``), written twice: log time = header stamp (``write_bag``), and as
