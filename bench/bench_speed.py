@@ -212,7 +212,8 @@ def bench_bag(a: Any, fx: Any, grade: Any, make_sim: Any) -> None:
             extra = [] if run == 'cli' else ['--iterations', run]
             passes = 1 if run == 'cli' else int(run)
             rc = cli_main(['replay', str(path), '--fixture', 'three_axis', '--imu', 'nav_grade',
-                           '--config', str(yaml), '--output', str(out), '--quiet', *extra])
+                           '--config', str(yaml), '--output', str(out), '--quiet', '--force',
+                           *extra])
             assert rc == 0, rc
             what = ('imu-calib replay (CLI defaults: 1 pass, in process)' if run == 'cli'
                     else f'imu-calib replay --iterations {passes} (CLI, in process)')

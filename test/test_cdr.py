@@ -21,7 +21,7 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
-from imu_calib_ros.msg_adapters import bag, cdr
+from imu_calib_ros.msg_adapters import bag, bag_raw, cdr
 from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
                                                 ImuCovariances, imu_msg_from_sample,
                                                 joint_state_msg_from_sample)
@@ -253,13 +253,13 @@ def test_mcap_is_read_in_bulk_and_sqlite3_through_rosbags(tmp_path: Path,
     bag.write_bag(tmp_path / 'm.mcap', imu, joints)
     bag.write_bag(tmp_path / 'm', imu, joints)
     bag.write_bag(tmp_path / 's', imu, joints, storage='sqlite3')
-    real = bag._rosbags_windows
+    real = bag_raw.rosbags_windows
     used = []
 
     def spy(*a: Any, **k: Any) -> Any:
         used.append(a[1])
         return real(*a, **k)
-    monkeypatch.setattr(bag, '_rosbags_windows', spy)
+    monkeypatch.setattr(bag_raw, 'rosbags_windows', spy)
     for name in ('m.mcap', 'm', 's'):
         i, j = bag.read_bag(tmp_path / name)
         assert len(i) == 3000 and len(j) == 1500
@@ -288,8 +288,8 @@ def test_mcap_chunks_overlapping_in_log_time_fall_back_to_rosbags_order(
                 w.write(cj, t * 1000, jdata)
     del data
     used = []
-    real = bag._rosbags_windows
-    monkeypatch.setattr(bag, '_rosbags_windows',
+    real = bag_raw.rosbags_windows
+    monkeypatch.setattr(bag_raw, 'rosbags_windows',
                         lambda *a, **k: used.append(1) or real(*a, **k))
     _check_against_rosbags(path, 0.0)
     assert used

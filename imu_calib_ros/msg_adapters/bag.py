@@ -17,20 +17,12 @@ What works with rosbags 0.11 (measured, see ``test/test_bag.py``):
   reordered, what came too late for the window, and backward jumps (a looping bag), which it
   passes on untouched.
 
-One reader (:func:`_raw_windows`, :func:`_ordered_windows`): windows of raw messages, each
-topic's messages as one byte buffer with offsets, decoded with numpy by :mod:`.cdr` (the
-messages without the fixed layout by rosbags, one by one, which also names what is wrong
-with a corrupt one), put in stamp order, then handed out as batches
-(:func:`iter_bag_batches`), samples (:func:`iter_bag`) or whole (:func:`read_bag`).
-Where the raw messages come from:
-
-- indexed mcap (what rosbag2 and rosbags write): chunk by chunk, straight from the file
-  through rosbags' own index and decompressor; the message index of each chunk gives the
-  records' offsets, so no Python runs per message (rosbags' ``Reader.messages`` yields one
-  message per Python step, ~1 us each before any decoding). Same messages, same order as
-  ``Reader.messages`` (log time, then chunk, then record order);
-- everything else (sqlite3, unindexed or message-compressed mcap, chunks that overlap in
-  log time): ``Reader.messages``.
+One reader (:func:`_ordered_windows`) under all three read functions: windows of raw
+messages (:mod:`.bag_raw`: indexed mcap chunk by chunk with no Python per message, else
+rosbags' ``Reader.messages``), each topic's messages decoded at once by :mod:`.cdr` (those
+without the fixed layout by rosbags, one by one, which also names what is wrong with a
+corrupt one), put in stamp order, then handed out as batches (:func:`iter_bag_batches`),
+samples (:func:`iter_bag`) or whole (:func:`read_bag`: the batches joined).
 
 Every write is atomic: the bag is written under a temporary name in the target's directory
 and renamed into place, so a failed or interrupted write leaves no partial bag.
@@ -40,7 +32,6 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import struct
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -56,6 +47,7 @@ from ..core.reorder import BatchReorder, ReorderStats
 from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import DEFAULT_REORDER_WINDOW_S
 from . import cdr
+from .bag_raw import RawBlock, oneline, raw_windows
 from .convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, ImuCovariances, imu_msg_from_sample,
                       imu_sample_from_msg, joint_sample_from_msg)
 
@@ -104,10 +96,10 @@ def _open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
         reader.open()
     except (ReaderError, OSError, KeyError, ValueError, TypeError, IndexError) as exc:
         raise BagError(f'{p}: cannot open bag, truncated or corrupt? '
-                       f'({_oneline(exc)})') from None
+                       f'({oneline(exc)})') from None
     except Exception as exc:  # noqa: BLE001 - any other rosbags/sqlite failure: same story
         raise BagError(f'{p}: cannot open bag, truncated or corrupt? '
-                       f'({type(exc).__name__}: {_oneline(exc)})') from None
+                       f'({type(exc).__name__}: {oneline(exc)})') from None
     try:
         yield reader
     finally:
@@ -115,11 +107,6 @@ def _open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
             reader.close()
         except Exception:  # noqa: BLE001 - closing a broken file must not mask the error
             pass
-
-
-def _oneline(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
 
 def _topics_of(reader: Any) -> dict[str, TopicInfo]:
@@ -171,33 +158,12 @@ def _wanted(imu_topic: str | None, joint_topic: str | None) -> dict[str, str]:
     return wanted
 
 
-def _raw_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any]]:
-    """rosbags' message stream with read errors (truncated data) turned into BagError."""
-    from rosbags.rosbag2.errors import ReaderError
-    it = reader.messages(connections=conns)
-    last = None
-    while True:
-        try:
-            item = next(it)
-        except StopIteration:
-            return
-        except (ReaderError, OSError, ValueError, KeyError, IndexError) as exc:
-            where = f' after log time {last} ns' if last is not None else ''
-            raise BagError(f'{path}: corrupt or truncated data{where} '
-                           f'({_oneline(exc)})') from None
-        except Exception as exc:  # noqa: BLE001 - e.g. sqlite/zstd errors from the storage
-            raise BagError(f'{path}: corrupt or truncated data ({type(exc).__name__}: '
-                           f'{_oneline(exc)})') from None
-        last = item[1]
-        yield item
-
-
 def _deserialize(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> Any:
     try:
         return store.deserialize_cdr(raw, conn.msgtype)
     except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt message
         raise BagError(f'{path}: corrupt {conn.msgtype} message on {conn.topic!r} at log '
-                       f'time {t_ns} ns ({type(exc).__name__}: {_oneline(exc)})') from None
+                       f'time {t_ns} ns ({type(exc).__name__}: {oneline(exc)})') from None
 
 
 def _sample(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> ImuSample | JointSample:
@@ -212,216 +178,10 @@ def _sample(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> ImuSample
 
 
 # --------------------------------------------------------------------------------------------
-# Raw messages, window by window
-# --------------------------------------------------------------------------------------------
-
-@dataclass
-class _Block:
-    """Raw messages of one topic in one byte buffer: message k is
-    ``buf[starts[k] : starts[k] + lengths[k]]``, logged at ``clocks[k]``."""
-
-    conn: Any
-    buf: NDArray[np.uint8]
-    starts: IntArray
-    lengths: IntArray
-    clocks: IntArray
-
-    def raw(self, k: int) -> bytes:
-        s = int(self.starts[k])
-        return self.buf[s:s + int(self.lengths[k])].tobytes()
-
-
-Window = dict[str, list[_Block]]
-
-
-def _raw_windows(reader: Any, p: Path, conns: list[Any], window_msgs: int) -> Iterator[Window]:
-    """The wanted messages in windows of about ``window_msgs`` (whole mcap chunks), in
-    ``Reader.messages`` order, each topic's as blocks."""
-    sources = _mcap_sources(reader, conns)
-    if sources is None:
-        yield from _rosbags_windows(reader, p, conns, window_msgs)
-    else:
-        yield from _mcap_windows(p, sources, window_msgs)
-
-
-def _rosbags_windows(reader: Any, p: Path, conns: list[Any], window_msgs: int
-                     ) -> Iterator[Window]:
-    raws: dict[str, list[Any]] = {}
-    clocks: dict[str, list[int]] = {}
-    first: dict[str, Any] = {}
-    count = 0
-
-    def window() -> Window:
-        out = {t: [_block_of(first[t], r, clocks[t])] for t, r in raws.items()}
-        raws.clear()
-        clocks.clear()
-        return out
-
-    for conn, t_ns, raw in _raw_messages(reader, p, conns):
-        topic = conn.topic
-        if topic not in raws:
-            raws[topic], clocks[topic], first[topic] = [], [], conn
-        raws[topic].append(raw)
-        clocks[topic].append(t_ns)
-        count += 1
-        if count >= window_msgs:
-            yield window()
-            count = 0
-    if raws:
-        yield window()
-
-
-def _block_of(conn: Any, raws: list[Any], clocks: list[int]) -> _Block:
-    lengths = np.fromiter(map(len, raws), np.int64, len(raws))
-    starts = np.zeros(len(raws), np.int64)
-    np.cumsum(lengths[:-1], out=starts[1:])
-    return _Block(conn, np.frombuffer(b''.join(raws), np.uint8), starts, lengths,
-                  np.array(clocks, np.int64))
-
-
-def _mcap_sources(reader: Any, conns: list[Any]) -> list[tuple[Any, dict[int, Any], list[Any]]]\
-        | None:
-    """Per mcap storage file: (rosbags' McapReader, {channel id: connection}, the chunks to
-    read in order), or None where the bulk path does not apply (then ``Reader.messages``)."""
-    from rosbags.rosbag2.storage_mcap import McapReader
-    storage = reader.storage
-    storages = getattr(storage, 'storages', None)
-    if storages is None:
-        storages = [storage]
-    elif reader.compression_mode == 'message':
-        return None
-    out = []
-    for s in storages:
-        if not isinstance(s, McapReader) or not s.chunks or not s.bio:
-            return None
-        cmap = {c.id: conn for c in s.connections for conn in conns
-                if c.topic == conn.topic and c.msgtype == conn.msgtype}
-        chunks = sorted((c for c in s.chunks if any(c.channel_count.get(i, 0) for i in cmap)),
-                        key=lambda c: (c.message_start_time, c.chunk_start_offset))
-        end, offset = -1, -1
-        for c in chunks:  # Reader.messages merges overlapping chunks: leave that to it
-            if c.message_start_time < end or (c.message_start_time == end
-                                              and c.chunk_start_offset < offset):
-                return None
-            if c.message_index_length <= 0:
-                return None
-            end, offset = max(end, c.message_end_time), max(offset, c.chunk_start_offset)
-        out.append((s, cmap, chunks))
-    return out
-
-
-_REC_HEAD = 31  # mcap Message record: opcode 1, length 8, channel 2, sequence 4, times 8 + 8
-
-
-def _mcap_windows(p: Path, sources: list[tuple[Any, dict[int, Any], list[Any]]],
-                  window_msgs: int) -> Iterator[Window]:
-    from rosbags.rosbag2.storage_mcap import decompress
-    pending: Window = {}
-    count = 0
-    last: int | None = None
-    for storage, cmap, chunks in sources:
-        with open(storage.path, 'rb') as fh:
-            for chunk in chunks:
-                try:
-                    blocks = _mcap_chunk(fh, chunk, cmap, decompress)
-                except Exception as exc:  # noqa: BLE001 - any damage: one line, as rosbags
-                    where = f' after log time {last} ns' if last is not None else ''
-                    raise BagError(f'{p}: corrupt or truncated data{where} '
-                                   f'({type(exc).__name__}: {_oneline(exc)})') from None
-                for b in blocks:
-                    last = int(b.clocks[-1]) if last is None else max(last, int(b.clocks[-1]))
-                while blocks:  # windows of window_msgs, cut inside a chunk if need be
-                    n = sum(len(b.starts) for b in blocks)
-                    if count + n < window_msgs:
-                        head, blocks = blocks, []
-                    else:
-                        head, blocks = _split_blocks(blocks, window_msgs - count)
-                    for b in head:
-                        pending.setdefault(b.conn.topic, []).append(b)
-                        count += len(b.starts)
-                    del head
-                    if count >= window_msgs:
-                        yield pending
-                        pending, count = {}, 0
-    if pending:
-        yield pending
-
-
-def _split_blocks(blocks: list[_Block], n: int) -> tuple[list[_Block], list[_Block]]:
-    """The first ``n`` messages of one chunk's blocks (in Reader.messages order: log time,
-    then record offset) and the rest."""
-    clocks = np.concatenate([b.clocks for b in blocks])
-    starts = np.concatenate([b.starts for b in blocks])
-    k = np.lexsort((starts, clocks))[n - 1] if n > 0 else None
-    head, tail = [], []
-    for b in blocks:
-        m = 0 if k is None else int(np.count_nonzero(
-            (b.clocks < clocks[k]) | ((b.clocks == clocks[k]) & (b.starts <= starts[k]))))
-        if m:
-            head.append(_Block(b.conn, b.buf, b.starts[:m], b.lengths[:m], b.clocks[:m]))
-        if m < len(b.starts):  # copied: the chunk's buffer is not kept for the next window
-            at, size = b.starts[m:], b.lengths[m:]
-            lo, hi = int(at.min()), int((at + size).max())
-            if hi - lo <= 2 * int(size.sum()):  # the chunk's end, as writers lay it out
-                tail.append(_Block(b.conn, b.buf[lo:hi].copy(), at - lo, size, b.clocks[m:]))
-            else:
-                mv = memoryview(b.buf)
-                tail.append(_block_of(b.conn, [mv[x:x + n] for x, n in zip(
-                    at.tolist(), size.tolist())], b.clocks[m:]))
-    return head, tail
-
-
-def _mcap_chunk(fh: Any, chunk: Any, cmap: dict[int, Any], decompress: Any) -> list[_Block]:
-    """The wanted messages of one mcap chunk, per topic (mcap spec: Chunk, MessageIndex)."""
-    fh.seek(chunk.chunk_start_offset)
-    size = chunk.chunk_length + chunk.message_index_length
-    data = fh.read(size)
-    if len(data) != size or data[0] != 0x06:
-        raise ValueError('chunk record missing or cut short')
-    (n,) = struct.unpack_from('<I', data, 37)
-    compression = data[41:41 + n].decode()
-    (csize,) = struct.unpack_from('<Q', data, 41 + n)
-    (crc,) = struct.unpack_from('<I', data, 33)
-    records = decompress(memoryview(data)[49 + n:49 + n + csize], compression,
-                         chunk.uncompressed_size, crc)
-    buf = np.frombuffer(records, np.uint8)
-    offsets: dict[str, list[IntArray]] = {}
-    conns: dict[str, Any] = {}
-    for cid, conn in cmap.items():
-        at = chunk.message_index_offsets.get(cid)
-        if at is None:
-            continue
-        rel = at - chunk.chunk_start_offset
-        op, _, index_cid, nbytes = struct.unpack_from('<BQHI', data, rel)
-        if op != 0x07 or index_cid != cid or rel + 15 + nbytes > size:
-            raise ValueError(f'bad message index of channel {cid}')
-        entries = np.frombuffer(data, '<u8', nbytes // 8, rel + 15).reshape(-1, 2)
-        offsets.setdefault(conn.topic, []).append(entries[:, 1].astype(np.int64))
-        conns[conn.topic] = conn
-    out = []
-    for topic, parts in offsets.items():
-        rec = np.concatenate(parts)
-        if rec.size and (rec.min() < 0 or rec.max() > len(buf) - _REC_HEAD):
-            raise ValueError('message index points outside the chunk')
-        opcode = buf[rec]
-        length = cdr.read_at(buf, rec + 1, '<u8')[:, 0].astype(np.int64)
-        channel = cdr.read_at(buf, rec + 9, '<u2')[:, 0]
-        clocks = cdr.read_at(buf, rec + 15, '<u8')[:, 0].astype(np.int64)
-        if not (np.all(opcode == 0x05) and np.all(length >= 22)
-                and np.all(rec + 9 + length <= len(buf))
-                and np.all(np.isin(channel, [c for c, x in cmap.items() if x.topic == topic]))):
-            raise ValueError('message record does not match its index')
-        order = np.lexsort((rec, clocks))  # Reader.messages: log time, then record order
-        rec, length, clocks = rec[order], length[order], clocks[order]
-        out.append(_Block(conns[topic], buf, rec + _REC_HEAD, length - 22, clocks))
-    return out
-
-
-# --------------------------------------------------------------------------------------------
 # Decoding a block (numpy via .cdr; messages without the fixed layout via rosbags)
 # --------------------------------------------------------------------------------------------
 
-def _decode_imu(store: Any, path: Path, b: _Block) -> list[ImuBatch]:
+def _decode_imu(store: Any, path: Path, b: RawBlock) -> list[ImuBatch]:
     """The block's Imu messages as batches, one per run of one frame_id."""
     cols = cdr.decode_imu(b.buf, b.starts, b.lengths)
     ok = np.flatnonzero(cols.ok)
@@ -450,7 +210,7 @@ def _same_bits(a: Any, b: Any) -> bool:
                                 np.asarray(b, np.float64).view(np.int64)))
 
 
-def _decode_joints(store: Any, path: Path, b: _Block) -> list[JointBatch]:
+def _decode_joints(store: Any, path: Path, b: RawBlock) -> list[JointBatch]:
     """The block's JointState messages as batches, one per run of one layout (names in the
     message's own order, velocities present or not)."""
     n = len(b.starts)
@@ -634,9 +394,6 @@ def _samples_of(b: ImuBatch | JointBatch) -> list[Any]:
 BATCH_WINDOW_MSGS = 16384  # raw messages per window of iter_bag_batches (~5 MB of Imu)
 
 
-BATCH_WINDOW_MSGS = 16384  # raw messages per window of iter_bag_batches (~5 MB of Imu)
-
-
 def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_TOPIC,
                      joint_topic: str | None = DEFAULT_JOINT_TOPIC,
                      window_msgs: int = BATCH_WINDOW_MSGS,
@@ -675,9 +432,6 @@ def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAU
 
 
 Part = ImuBatch | JointBatch
-
-
-Part = ImuBatch | JointBatch
 ITER_CHUNK_MSGS = 2048  # messages decoded together by iter_bag (~0.7 MB of Imu messages)
 READ_WINDOW_MSGS = 65536  # messages per window of read_bag
 
@@ -709,7 +463,7 @@ def _ordered_windows(p: Path, imu_topic: str | None, joint_topic: str | None,
                 out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
             return out
 
-        for window in _raw_windows(reader, p, conns, window_msgs):
+        for window in raw_windows(reader, p, conns, window_msgs):
             out: dict[str, list[Any]] = {}
             for topic in wanted:
                 blocks = window.get(topic, [])
@@ -1078,7 +832,7 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
         raise
     except Exception as exc:
         remove_bag(tmp)
-        raise BagError(f'{p}: cannot write bag ({type(exc).__name__}: {_oneline(exc)})') \
+        raise BagError(f'{p}: cannot write bag ({type(exc).__name__}: {oneline(exc)})') \
             from None
     except BaseException:
         remove_bag(tmp)
