@@ -36,6 +36,7 @@ IntArray = NDArray[np.int64]
 
 
 def oneline(exc: BaseException) -> str:
+    """The first line of an exception's text (or its type's name)."""
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
 
@@ -91,7 +92,8 @@ def raw_windows(reader: Any, p: Path, conns: list[Any], window_msgs: int) -> Ite
 
 
 def rosbags_windows(reader: Any, p: Path, conns: list[Any], window_msgs: int
-                     ) -> Iterator[Window]:
+                    ) -> Iterator[Window]:
+    """Windows of ``window_msgs`` messages from ``Reader.messages`` (any storage)."""
     raws: dict[str, list[Any]] = {}
     clocks: dict[str, list[int]] = {}
     first: dict[str, Any] = {}
@@ -122,7 +124,7 @@ def _block_of(conn: Any, raws: list[Any], clocks: list[int]) -> RawBlock:
     starts = np.zeros(len(raws), np.int64)
     np.cumsum(lengths[:-1], out=starts[1:])
     return RawBlock(conn, np.frombuffer(b''.join(raws), np.uint8), starts, lengths,
-                  np.array(clocks, np.int64))
+                    np.array(clocks, np.int64))
 
 
 def _mcap_sources(reader: Any, conns: list[Any]) -> list[tuple[Any, dict[int, Any], list[Any]]]\
@@ -176,12 +178,14 @@ def _mcap_windows(p: Path, sources: list[tuple[Any, dict[int, Any], list[Any]]],
                                    f'({type(exc).__name__}: {oneline(exc)})') from None
                 for b in blocks:
                     last = int(b.clocks[-1]) if last is None else max(last, int(b.clocks[-1]))
+                split = False
                 while blocks:  # windows of window_msgs, cut inside a chunk if need be
                     n = sum(len(b.starts) for b in blocks)
                     if count + n < window_msgs:
-                        head, blocks = blocks, []
+                        head, blocks = (_compact(blocks) if split else blocks), []
                     else:
                         head, blocks = _split_blocks(blocks, window_msgs - count)
+                        split = True
                     for b in head:
                         pending.setdefault(b.conn.topic, []).append(b)
                         count += len(b.starts)
@@ -195,26 +199,34 @@ def _mcap_windows(p: Path, sources: list[tuple[Any, dict[int, Any], list[Any]]],
 
 def _split_blocks(blocks: list[RawBlock], n: int) -> tuple[list[RawBlock], list[RawBlock]]:
     """The first ``n`` messages of one chunk's blocks (in Reader.messages order: log time,
-    then record offset) and the rest."""
+    then record offset) and the rest (views of the same chunk)."""
     clocks = np.concatenate([b.clocks for b in blocks])
     starts = np.concatenate([b.starts for b in blocks])
-    k = np.lexsort((starts, clocks))[n - 1] if n > 0 else None
+    k = np.lexsort((starts, clocks))[n - 1]
     head, tail = [], []
     for b in blocks:
-        m = 0 if k is None else int(np.count_nonzero(
+        m = int(np.count_nonzero(
             (b.clocks < clocks[k]) | ((b.clocks == clocks[k]) & (b.starts <= starts[k]))))
-        if m:
-            head.append(RawBlock(b.conn, b.buf, b.starts[:m], b.lengths[:m], b.clocks[:m]))
-        if m < len(b.starts):  # copied: the chunk's buffer is not kept for the next window
-            at, size = b.starts[m:], b.lengths[m:]
-            lo, hi = int(at.min()), int((at + size).max())
-            if hi - lo <= 2 * int(size.sum()):  # the chunk's end, as writers lay it out
-                tail.append(RawBlock(b.conn, b.buf[lo:hi].copy(), at - lo, size, b.clocks[m:]))
-            else:
-                mv = memoryview(b.buf)
-                tail.append(_block_of(b.conn, [mv[x:x + n] for x, n in zip(
-                    at.tolist(), size.tolist())], b.clocks[m:]))
+        for part, sl in ((head, slice(None, m)), (tail, slice(m, None))):
+            if len(b.starts[sl]):
+                part.append(RawBlock(b.conn, b.buf, b.starts[sl], b.lengths[sl], b.clocks[sl]))
     return head, tail
+
+
+def _compact(blocks: list[RawBlock]) -> list[RawBlock]:
+    """The blocks with their bytes copied out of the chunk, so that what a window keeps
+    for the next does not hold the whole chunk while that is read (bounded memory)."""
+    out = []
+    for b in blocks:
+        lo, hi = int(b.starts.min()), int((b.starts + b.lengths).max())
+        if hi - lo <= 2 * int(b.lengths.sum()):  # the chunk's end, as writers lay it out
+            out.append(RawBlock(b.conn, b.buf[lo:hi].copy(), b.starts - lo, b.lengths,
+                                b.clocks))
+        else:
+            mv = memoryview(b.buf)
+            out.append(_block_of(b.conn, [mv[x:x + ln] for x, ln in zip(
+                b.starts.tolist(), b.lengths.tolist())], b.clocks))
+    return out
 
 
 def _mcap_chunk(fh: Any, chunk: Any, cmap: dict[int, Any], decompress: Any) -> list[RawBlock]:
