@@ -315,3 +315,30 @@ def test_help_imports_no_numpy_heavy_module() -> None:
                          timeout=60, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '[]', out.stdout
+
+
+@pytest.mark.parametrize('mode', ['STORAGE', 'FILE', 'MESSAGE'])
+def test_compressed_bags_equal_rosbags(tmp_path: Path, mode: str,
+                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """zstd chunks (STORAGE) and a zstd-compressed file are read chunk by chunk; per-message
+    compression goes through Reader.messages; all equal rosbags."""
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+    path = tmp_path / mode
+    w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    w.set_compression(getattr(CompressionMode, mode), CompressionFormat.ZSTD)
+    with w:
+        ci = w.add_connection('/imu/data_raw', IMU_MSGTYPE, typestore=STORE)
+        cj = w.add_connection('/joint_states', JOINT_STATE_MSGTYPE, typestore=STORE)
+        for k in range(6000):
+            t = 10 ** 9 + k * 500_000
+            w.write(ci, t, cdr.imu_cdr(t, 'imu_link', (k * 1e-3, 0.5, -0.25), (0.0, 0.1, 9.8),
+                                       np.zeros(9), np.zeros(9)))
+            if k % 20 == 0:
+                w.write(cj, t + 1, cdr.joint_state_cdr(t + 1, '', ('a', 'b'), (k * 1e-2, 0.0),
+                                                       (0.1, 0.2)))
+    used = []
+    real = bag_raw.rosbags_windows
+    monkeypatch.setattr(bag_raw, 'rosbags_windows',
+                        lambda *a, **k: used.append(1) or real(*a, **k))
+    _check_against_rosbags(path, 0.0)
+    assert bool(used) == (mode == 'MESSAGE')
