@@ -463,17 +463,31 @@ def _ordered_windows(p: Path, imu_topic: str | None, joint_topic: str | None,
                 out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
             return out
 
-        for window in raw_windows(reader, p, conns, window_msgs):
-            out: dict[str, list[Any]] = {}
-            for topic in wanted:
-                blocks = window.get(topic, [])
+        parts: dict[str, list[Any]] = {t: [] for t in wanted}
+        clocks: dict[str, list[NDArray[np.int64]]] = {t: [] for t in wanted}
+        count = 0
+
+        def window() -> dict[str, list[Any]]:
+            out = {t: orders[t].push(parts[t], np.concatenate(clocks[t]) if clocks[t] else
+                                     np.zeros(0, np.int64)) for t in wanted}
+            for t in wanted:
+                parts[t], clocks[t] = [], []
+            return released(out)
+
+        # raw windows are decoded at once (their bytes are valid until the next is asked
+        # for) and gathered, decoded, into windows of window_msgs
+        for raw in raw_windows(reader, p, conns, window_msgs):
+            for topic, blocks in raw.items():
                 decode = _decode_joints if topic == joint_topic else _decode_imu
-                parts = [x for b in blocks for x in decode(store, p, b)]
-                clocks = np.concatenate([b.clocks for b in blocks]) if blocks else \
-                    np.zeros(0, np.int64)
-                out[topic] = orders[topic].push(parts, clocks)
-            del window, blocks, parts  # the raw chunk is not held while the next is read
-            yield released(out)
+                for b in blocks:
+                    parts[topic] += decode(store, p, b)
+                    clocks[topic].append(b.clocks)
+                    count += len(b.starts)
+            del raw, blocks, b
+            if count >= window_msgs:
+                yield window()
+                count = 0
+        yield window()
         out = {t: o.flush() for t, o in orders.items()}
         if gate is not None:
             out[imu_topic] = gate.flush(out[imu_topic])  # type: ignore[index]

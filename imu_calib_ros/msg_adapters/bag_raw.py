@@ -163,38 +163,38 @@ _REC_HEAD = 31  # mcap Message record: opcode 1, length 8, channel 2, sequence 4
 
 def _mcap_windows(p: Path, sources: list[tuple[Any, dict[int, Any], list[Any]]],
                   window_msgs: int) -> Iterator[Window]:
+    """A window per chunk (several if the chunk holds more than ``window_msgs``). The
+    chunks are read into one reused buffer: a window's bytes are valid until the next
+    window is asked for."""
     from rosbags.rosbag2.storage_mcap import decompress
-    pending: Window = {}
-    count = 0
     last: int | None = None
+    buffer = bytearray()
     for storage, cmap, chunks in sources:
         with open(storage.path, 'rb') as fh:
             for chunk in chunks:
                 try:
-                    blocks = _mcap_chunk(fh, chunk, cmap, decompress)
+                    size = chunk.chunk_length + chunk.message_index_length
+                    if len(buffer) < size:  # with room: chunks differ a little in size
+                        buffer = bytearray(max(size + size // 4, 2 << 20))
+                    blocks = _mcap_chunk(fh, memoryview(buffer)[:size], chunk, cmap,
+                                         decompress)
                 except Exception as exc:  # noqa: BLE001 - any damage: one line, as rosbags
                     where = f' after log time {last} ns' if last is not None else ''
                     raise BagError(f'{p}: corrupt or truncated data{where} '
                                    f'({type(exc).__name__}: {oneline(exc)})') from None
                 for b in blocks:
                     last = int(b.clocks[-1]) if last is None else max(last, int(b.clocks[-1]))
-                split = False
-                while blocks:  # windows of window_msgs, cut inside a chunk if need be
-                    n = sum(len(b.starts) for b in blocks)
-                    if count + n < window_msgs:
-                        head, blocks = (_compact(blocks) if split else blocks), []
+                while blocks:  # windows of at most window_msgs, cut inside the chunk
+                    if sum(len(b.starts) for b in blocks) <= window_msgs:
+                        head, blocks = blocks, []
                     else:
-                        head, blocks = _split_blocks(blocks, window_msgs - count)
-                        split = True
+                        head, blocks = _split_blocks(blocks, window_msgs)
+                    window: Window = {}
                     for b in head:
-                        pending.setdefault(b.conn.topic, []).append(b)
-                        count += len(b.starts)
+                        window.setdefault(b.conn.topic, []).append(b)
                     del head
-                    if count >= window_msgs:
-                        yield pending
-                        pending, count = {}, 0
-    if pending:
-        yield pending
+                    yield window
+                    del window
 
 
 def _split_blocks(blocks: list[RawBlock], n: int) -> tuple[list[RawBlock], list[RawBlock]]:
@@ -213,34 +213,19 @@ def _split_blocks(blocks: list[RawBlock], n: int) -> tuple[list[RawBlock], list[
     return head, tail
 
 
-def _compact(blocks: list[RawBlock]) -> list[RawBlock]:
-    """The blocks with their bytes copied out of the chunk, so that what a window keeps
-    for the next does not hold the whole chunk while that is read (bounded memory)."""
-    out = []
-    for b in blocks:
-        lo, hi = int(b.starts.min()), int((b.starts + b.lengths).max())
-        if hi - lo <= 2 * int(b.lengths.sum()):  # the chunk's end, as writers lay it out
-            out.append(RawBlock(b.conn, b.buf[lo:hi].copy(), b.starts - lo, b.lengths,
-                                b.clocks))
-        else:
-            mv = memoryview(b.buf)
-            out.append(_block_of(b.conn, [mv[x:x + ln] for x, ln in zip(
-                b.starts.tolist(), b.lengths.tolist())], b.clocks))
-    return out
-
-
-def _mcap_chunk(fh: Any, chunk: Any, cmap: dict[int, Any], decompress: Any) -> list[RawBlock]:
-    """The wanted messages of one mcap chunk, per topic (mcap spec: Chunk, MessageIndex)."""
+def _mcap_chunk(fh: Any, data: memoryview, chunk: Any, cmap: dict[int, Any], decompress: Any
+                ) -> list[RawBlock]:
+    """The wanted messages of one mcap chunk, per topic (mcap spec: Chunk, MessageIndex),
+    read into ``data`` (the chunk record and its message indexes)."""
     fh.seek(chunk.chunk_start_offset)
-    size = chunk.chunk_length + chunk.message_index_length
-    data = fh.read(size)
-    if len(data) != size or data[0] != 0x06:
+    size = len(data)
+    if fh.readinto(data) != size or data[0] != 0x06:
         raise ValueError('chunk record missing or cut short')
     (n,) = struct.unpack_from('<I', data, 37)
-    compression = data[41:41 + n].decode()
+    compression = bytes(data[41:41 + n]).decode()
     (csize,) = struct.unpack_from('<Q', data, 41 + n)
     (crc,) = struct.unpack_from('<I', data, 33)
-    records = decompress(memoryview(data)[49 + n:49 + n + csize], compression,
+    records = decompress(data[49 + n:49 + n + csize], compression,
                          chunk.uncompressed_size, crc)
     buf = np.frombuffer(records, np.uint8)
     offsets: dict[str, list[IntArray]] = {}
