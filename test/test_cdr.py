@@ -270,8 +270,6 @@ def test_mcap_chunks_overlapping_in_log_time_fall_back_to_rosbags_order(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Chunks whose log times overlap (a writer that did not sort): Reader.messages merges
     them, so the reader leaves it to rosbags; the result equals rosbags'."""
-    s = ImuSample(0, np.array([1.0, 2, 3]), np.array([4.0, 5, 6]), 'imu_link')
-    data = bytes(STORE.serialize_cdr(imu_msg_from_sample(s, STORE), IMU_MSGTYPE))
     j = JointSample(0, ('a',), np.array([0.5]))
     jdata = bytes(STORE.serialize_cdr(joint_state_msg_from_sample(j, STORE),
                                       JOINT_STATE_MSGTYPE))
@@ -286,7 +284,6 @@ def test_mcap_chunks_overlapping_in_log_time_fall_back_to_rosbags_order(
                                               (0.0, 0.0, 9.8), np.zeros(9), np.zeros(9)))
             if k % 10 == 0:
                 w.write(cj, t * 1000, jdata)
-    del data
     used = []
     real = bag_raw.rosbags_windows
     monkeypatch.setattr(bag_raw, 'rosbags_windows',
