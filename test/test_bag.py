@@ -18,7 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from imu_calib_ros.core.errors import BagError
 from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
-from imu_calib_ros.msg_adapters import bag
+from imu_calib_ros.msg_adapters import bag, cdr
 from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
                                                 ImuCovariances, imu_msg_from_sample,
                                                 joint_state_msg_from_sample)
@@ -132,12 +132,13 @@ def test_numpy_imu_packer_gives_rosbags_bytes(frame_id: str, stamp: int, values:
     covs = ImuCovariances(np.array(cov[:9]), np.array(cov[9:]))
     batch = ImuBatch(np.array([stamp], np.int64), np.array([values[:3]]),
                      np.array([values[3:]]), frame_id)
-    rows = bag._pack_imu(batch, frame_id, covs)
+    rows = cdr.pack_imu(batch.stamps_ns, batch.gyro_rad_s, batch.accel_m_s2, frame_id,
+                        covs.angular_velocity_rad2_s2, covs.linear_acceleration_m2_s4)
     ref = STORE.serialize_cdr(imu_msg_from_sample(batch.sample(0), STORE, covs), IMU_MSGTYPE)
     assert bytes(rows[0]) == bytes(ref)
-    back = bag._unpack_imu(rows)
-    assert back is not None and back.frame_id == frame_id
-    assert_imu_equal(batch, back)
+    back = cdr.decode_imu(rows.reshape(-1), [0], [rows.shape[1]])
+    assert back.ok.all() and back.frame_ids == [frame_id]
+    assert_imu_equal(batch, ImuBatch(back.stamps_ns, back.gyro_rad_s, back.accel_m_s2))
 
 
 @settings(max_examples=40, deadline=None)
@@ -153,10 +154,13 @@ def test_numpy_joint_decoder_matches_rosbags(names: list[str], frame_id: str, wi
                for k in range(n_msgs)]
     raws = [bytes(STORE.serialize_cdr(joint_state_msg_from_sample(s, STORE, frame_id),
                                       JOINT_STATE_MSGTYPE)) for s in samples]
-    rows = bag._rows(raws)
-    assert rows is not None
-    batch = bag._unpack_joints(rows, STORE.deserialize_cdr(raws[0], JOINT_STATE_MSGTYPE))
-    assert batch is not None, 'fast path not taken for a fixed layout'
+    assert raws[0] == cdr.joint_state_cdr(samples[0].stamp_ns, frame_id, names,
+                                          samples[0].positions_rad,
+                                          () if not with_vel else samples[0].velocities_rad_s)
+    rows = np.frombuffer(b''.join(raws), np.uint8).reshape(n_msgs, -1)
+    res = cdr.decode_joint_rows(rows)
+    assert res is not None, 'fast path not taken for a fixed layout'
+    batch = JointBatch(*res)
     np.testing.assert_array_equal(batch.stamps_ns, [s.stamp_ns for s in samples])
     np.testing.assert_array_equal(batch.positions_rad, [s.positions_rad for s in samples])
     if with_vel:
@@ -170,25 +174,30 @@ def test_fast_and_slow_read_paths_agree(tmp_path: Path, monkeypatch: pytest.Monk
     imu, joints = make_batches(300, 150)
     bag.write_bag(tmp_path / 'a', imu, joints)
     calls = {'imu': 0, 'joint': 0}
-    real_imu, real_joint = bag._unpack_imu, bag._unpack_joints
+    real_imu, real_joint = cdr.decode_imu, cdr.decode_joint_rows
 
-    def spy_imu(rows):  # type: ignore[no-untyped-def]
+    def spy_imu(buf, starts, lengths):  # type: ignore[no-untyped-def]
         calls['imu'] += 1
-        out = real_imu(rows)
+        out = real_imu(buf, starts, lengths)
+        assert out.ok.all()
+        return out
+
+    def spy_joint(rows):  # type: ignore[no-untyped-def]
+        calls['joint'] += 1
+        out = real_joint(rows)
         assert out is not None
         return out
 
-    def spy_joint(rows, first):  # type: ignore[no-untyped-def]
-        calls['joint'] += 1
-        out = real_joint(rows, first)
-        assert out is not None
+    def none_ok(buf, starts, lengths):  # type: ignore[no-untyped-def]
+        out = real_imu(buf, starts, lengths)
+        out.ok[:] = False
         return out
-    monkeypatch.setattr(bag, '_unpack_imu', spy_imu)
-    monkeypatch.setattr(bag, '_unpack_joints', spy_joint)
+    monkeypatch.setattr(cdr, 'decode_imu', spy_imu)
+    monkeypatch.setattr(cdr, 'decode_joint_rows', spy_joint)
     fast = bag.read_bag(tmp_path / 'a')
     assert calls == {'imu': 1, 'joint': 1}
-    monkeypatch.setattr(bag, '_unpack_imu', lambda rows: None)
-    monkeypatch.setattr(bag, '_unpack_joints', lambda rows, first: None)
+    monkeypatch.setattr(cdr, 'decode_imu', none_ok)
+    monkeypatch.setattr(cdr, 'decode_joint_rows', lambda rows: None)
     slow = bag.read_bag(tmp_path / 'a')
     assert_imu_equal(fast[0], slow[0])
     assert_joints_equal(fast[1], slow[1])
@@ -243,7 +252,7 @@ def test_chunked_read_equals_whole_read(tmp_path: Path, monkeypatch: pytest.Monk
     msgs.sort(key=lambda m: m[2])
     _write_raw_bag(tmp_path / 'p', msgs)
     whole = bag.read_bag(tmp_path / 'p')
-    monkeypatch.setattr(bag, 'READ_CHUNK_MSGS', chunk)
+    monkeypatch.setattr(bag, 'READ_WINDOW_MSGS', chunk)
     parts = bag.read_bag(tmp_path / 'p')
     assert_imu_equal(imu, whole[0])
     assert_imu_equal(imu, parts[0])

@@ -128,7 +128,7 @@ def test_every_read_path_delivers_stamp_order_and_counts_the_reorder(
         jitter_bag: tuple[Path, dict[str, list]], read: Read,
         monkeypatch: pytest.MonkeyPatch) -> None:
     path, in_log_order = jitter_bag
-    monkeypatch.setattr(bag, 'READ_CHUNK_MSGS', 4096)  # read_bag: across its chunks too
+    monkeypatch.setattr(bag, 'READ_WINDOW_MSGS', 4096)  # read_bag: across its chunks too
     imu, joints, stats = read(path, bag.DEFAULT_REORDER_WINDOW_S)
     for got, topic in ((imu, IMU), (joints, JOINTS)):
         assert np.all(np.diff(got) > 0), f'{topic}: not in strictly increasing stamp order'

@@ -169,6 +169,8 @@ def run(args: Any) -> int:
     else:
         from ..core.estimator import load_estimator_config
         from ..core.estimator.replay import replay_run
+        from . import tune_allocator
+        tune_allocator()
         config = load_estimator_config(args.config)
         bar = None
         if not args.quiet:

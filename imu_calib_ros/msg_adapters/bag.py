@@ -7,24 +7,25 @@ What works with rosbags 0.11 (measured, see ``test/test_bag.py``):
   ``.mcap`` is written as a directory bag in a temporary place and its single ``.mcap`` file
   is moved to the path (the mcap file is self-contained: schemas, channels, chunk index and
   statistics are inside it; ``metadata.yaml`` only repeats them).
-- reading: ``rosbags.rosbag2.Reader`` reads a bag directory of either storage, a lone
-  ``.mcap`` file and a lone ``.db3`` file. Messages come in log-time (record timestamp)
-  order; the writer here sets the record timestamp equal to the header stamp, rosbag2 sets
-  it to the receipt time (header stamp + transport delay: at 2 kHz a 1.5-2.5 ms delay puts
-  one IMU message in eight behind a newer one). Every read path therefore delivers each
-  topic in header-stamp order through a bounded reorder window (``reorder_window_s`` of log
-  time, :mod:`imu_calib_ros.core.reorder`), and counts what it reordered, what came too
-  late for the window, and backward jumps (a looping bag), which it passes on untouched.
+- reading: ``rosbags.rosbag2.Reader`` opens a bag directory of either storage, a lone
+  ``.mcap`` file and a lone ``.db3`` file, and checks it (topics, types, counts). Messages
+  come in log-time (record timestamp) order; the writer here sets the record timestamp equal
+  to the header stamp, rosbag2 sets it to the receipt time (header stamp + transport delay:
+  at 2 kHz a 1.5-2.5 ms delay puts one IMU message in eight behind a newer one). Every read
+  path therefore delivers each topic in header-stamp order through a bounded reorder window
+  (``reorder_window_s`` of log time, :mod:`imu_calib_ros.core.reorder`), and counts what it
+  reordered, what came too late for the window, and backward jumps (a looping bag), which it
+  passes on untouched.
+
+One reader (:func:`_ordered_windows`) under all three read functions: windows of raw
+messages (:mod:`.bag_raw`: indexed mcap chunk by chunk with no Python per message, else
+rosbags' ``Reader.messages``), each topic's messages decoded at once by :mod:`.cdr` (those
+without the fixed layout by rosbags, one by one, which also names what is wrong with a
+corrupt one), put in stamp order, then handed out as batches (:func:`iter_bag_batches`),
+samples (:func:`iter_bag`) or whole (:func:`read_bag`: the batches joined).
 
 Every write is atomic: the bag is written under a temporary name in the target's directory
 and renamed into place, so a failed or interrupted write leaves no partial bag.
-
-Speed: ``Typestore.deserialize_cdr`` costs about 10 us per Imu message (~100k msgs/s).
-:func:`read_bag` therefore decodes the fixed CDR layout of a topic's messages with numpy
-in one pass when every message on the topic has the same byte layout (one frame_id, one
-joint-name list), checked byte for byte, and falls back to rosbags otherwise;
-:func:`write_bag` packs Imu messages the same way. Both paths are tested to give the bytes
-and values rosbags gives.
 """
 from __future__ import annotations
 
@@ -45,15 +46,15 @@ from ..core.errors import BagError, InputError
 from ..core.reorder import BatchReorder, ReorderStats
 from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import DEFAULT_REORDER_WINDOW_S
-from .convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, ImuCovariances, NS_PER_S,
-                      imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg,
-                      joint_state_msg_from_sample)
+from . import cdr
+from .bag_raw import RawBlock, oneline, raw_windows
+from .convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, ImuCovariances, imu_msg_from_sample,
+                      imu_sample_from_msg, joint_sample_from_msg)
 
 DEFAULT_IMU_TOPIC = '/imu/data_raw'
 DEFAULT_JOINT_TOPIC = '/joint_states'
-#: Default longest wait of a message for its topic's stamp order [s of log time]: far above
-#: rosbag2's receipt jitter (milliseconds), far below a looping bag's backward jump.
 Storage = Literal['mcap', 'sqlite3']
+IntArray = NDArray[np.int64]
 
 
 def _typestore() -> Any:
@@ -67,154 +68,6 @@ class TopicInfo:
 
     msgtype: str
     count: int
-
-
-# --------------------------------------------------------------------------------------------
-# Fixed-layout CDR packing/unpacking (numpy). rosbags handles one message per Python call;
-# a topic whose messages share one byte layout is packed/unpacked for all rows at once.
-# Layout (little-endian CDR, 4-byte encapsulation header, alignment relative to the body):
-#   Header: int32 sec, uint32 nanosec, uint32 len(frame_id)+1, frame_id bytes, NUL
-#   Imu: align 8, then 37 float64: orientation(4), orientation_cov(9), angular_velocity(3),
-#        angular_velocity_cov(9), linear_acceleration(3), linear_acceleration_cov(9)
-# --------------------------------------------------------------------------------------------
-
-_CDR_LE = b'\x00\x01\x00\x00'
-
-
-def _align(offset: int, n: int) -> int:
-    return (offset + n - 1) // n * n
-
-
-def _header_bytes(frame_id: str) -> tuple[bytes, int]:
-    """Header bytes after the stamp (length-prefixed frame_id) and the body offset after it."""
-    fid = frame_id.encode('utf-8') + b'\x00'
-    tail = len(fid).to_bytes(4, 'little') + fid
-    return tail, 8 + len(tail)
-
-
-def _imu_layout(frame_id: str) -> tuple[bytes, int, int]:
-    """(template prefix after the stamp, offset of the 37 doubles, message length) in bytes."""
-    tail, end = _header_bytes(frame_id)
-    doubles = _align(end, 8)
-    prefix = tail + b'\x00' * (doubles - end)
-    return prefix, 4 + doubles, 4 + doubles + 37 * 8
-
-
-def _pack_imu(imu: ImuBatch, frame_id: str, cov: ImuCovariances) -> np.ndarray:
-    """All Imu messages of ``imu`` serialised, as a (N, length) uint8 array."""
-    prefix, off, length = _imu_layout(frame_id)
-    n = len(imu)
-    out = np.zeros((n, length), np.uint8)
-    out[:, 0:4] = np.frombuffer(_CDR_LE, np.uint8)
-    sec, nanosec = np.divmod(imu.stamps_ns.astype(np.int64), NS_PER_S)
-    if n and (sec.min() < -2 ** 31 or sec.max() >= 2 ** 31):
-        raise InputError('IMU stamps do not fit builtin_interfaces/Time (int32 seconds)')
-    out[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(n, 4)
-    out[:, 8:12] = nanosec.astype('<u4').view(np.uint8).reshape(n, 4)
-    out[:, 12:off] = np.frombuffer(prefix, np.uint8)
-    d = np.zeros((n, 37), '<f8')
-    d[:, 3] = 1.0
-    d[:, 4] = -1.0
-    d[:, 13:16] = imu.gyro_rad_s
-    d[:, 16:25] = np.asarray(cov.angular_velocity_rad2_s2, float).reshape(9)
-    d[:, 25:28] = imu.accel_m_s2
-    d[:, 28:37] = np.asarray(cov.linear_acceleration_m2_s4, float).reshape(9)
-    out[:, off:] = d.view(np.uint8).reshape(n, 37 * 8)
-    return out
-
-
-def _stamps_from_rows(rows: np.ndarray) -> np.ndarray:
-    sec = rows[:, 4:8].copy().view('<i4').reshape(-1).astype(np.int64)
-    nanosec = rows[:, 8:12].copy().view('<u4').reshape(-1).astype(np.int64)
-    return sec * NS_PER_S + nanosec
-
-
-def _same_layout(rows: np.ndarray, mask: np.ndarray) -> bool:
-    """Whether every row equals the first on the structural bytes ``mask``."""
-    return bool(np.all(rows[:, mask] == rows[0, mask]))
-
-
-def _unpack_imu(rows: np.ndarray) -> ImuBatch | None:
-    """Decode equal-length Imu messages, or None if their layout is not one fixed layout."""
-    first = bytes(rows[0])
-    if first[:4] != _CDR_LE:
-        return None
-    flen = int.from_bytes(first[12:16], 'little')
-    if flen < 1 or 16 + flen > len(first):
-        return None
-    try:
-        frame_id = first[16:16 + flen - 1].decode('utf-8')
-    except UnicodeDecodeError:
-        return None
-    prefix, off, length = _imu_layout(frame_id)
-    if length != rows.shape[1] or first[12:off] != prefix:
-        return None
-    mask = np.zeros(length, bool)
-    mask[0:4] = True
-    mask[12:off] = True
-    if not _same_layout(rows, mask):
-        return None
-    d = rows[:, off:].copy().view('<f8').reshape(-1, 37)
-    return ImuBatch(_stamps_from_rows(rows), d[:, 13:16].astype(np.float64),
-                    d[:, 25:28].astype(np.float64), frame_id)
-
-
-def _joint_layout(frame_id: str, names: tuple[str, ...], n_vel: int,
-                  n_eff: int) -> tuple[np.ndarray, int, int, int]:
-    """Structural mask, offsets of position and velocity doubles, and length of a JointState.
-
-    JointState: Header, sequence<string> name, then sequence<float64> position, velocity,
-    effort (uint32 count aligned to 4, doubles aligned to 8). The mask covers the bytes that
-    must be equal in every message of one layout: encapsulation, frame_id, counts, names.
-    """
-    _, body = _header_bytes(frame_id)
-    spans = [(0, 4), (4 + 8, 4 + body)]
-
-    def count_at(body: int) -> int:
-        body = _align(body, 4)
-        spans.append((4 + body, 4 + body + 4))
-        return body + 4
-
-    body = count_at(body)
-    for name in names:
-        body = _align(body, 4)
-        encoded = name.encode('utf-8') + b'\x00'
-        spans.append((4 + body, 4 + body + 4 + len(encoded)))
-        body += 4 + len(encoded)
-    offsets = []
-    for count in (len(names), n_vel, n_eff):
-        body = count_at(body)
-        if count:
-            body = _align(body, 8)
-        offsets.append(4 + body)
-        body += 8 * count
-    length = 4 + body
-    mask = np.zeros(length, bool)
-    for a, b in spans:
-        mask[a:b] = True
-    return mask, offsets[0], offsets[1], length
-
-
-def _unpack_joints(rows: np.ndarray, first_msg: Any) -> JointBatch | None:
-    """Decode equal-length JointState messages laid out like ``first_msg`` (deserialised)."""
-    names = tuple(str(n) for n in first_msg.name)
-    n_pos, n_vel, n_eff = len(first_msg.position), len(first_msg.velocity), len(first_msg.effort)
-    if n_pos != len(names) or n_vel not in (0, len(names)):
-        return None
-    mask, off_p, off_v, length = _joint_layout(str(first_msg.header.frame_id), names, n_vel,
-                                               n_eff)
-    if length != rows.shape[1] or not _same_layout(rows, mask):
-        return None
-    n = len(names)
-    pos = rows[:, off_p:off_p + 8 * n].copy().view('<f8').reshape(-1, n).astype(np.float64)
-    vel = (rows[:, off_v:off_v + 8 * n].copy().view('<f8').reshape(-1, n).astype(np.float64)
-           if n_vel else None)
-    if not (np.array_equal(pos[0], np.asarray(first_msg.position, float), equal_nan=True)
-            and (vel is None or np.array_equal(vel[0], np.asarray(first_msg.velocity, float),
-                                               equal_nan=True))):
-        return None  # layout guess disagrees with rosbags: use the slow path
-    return JointBatch(_stamps_from_rows(rows), names, pos, vel)
-
 
 # --------------------------------------------------------------------------------------------
 # Opening and checking a bag
@@ -243,10 +96,10 @@ def _open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
         reader.open()
     except (ReaderError, OSError, KeyError, ValueError, TypeError, IndexError) as exc:
         raise BagError(f'{p}: cannot open bag, truncated or corrupt? '
-                       f'({_oneline(exc)})') from None
+                       f'({oneline(exc)})') from None
     except Exception as exc:  # noqa: BLE001 - any other rosbags/sqlite failure: same story
         raise BagError(f'{p}: cannot open bag, truncated or corrupt? '
-                       f'({type(exc).__name__}: {_oneline(exc)})') from None
+                       f'({type(exc).__name__}: {oneline(exc)})') from None
     try:
         yield reader
     finally:
@@ -254,11 +107,6 @@ def _open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
             reader.close()
         except Exception:  # noqa: BLE001 - closing a broken file must not mask the error
             pass
-
-
-def _oneline(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
 
 def _topics_of(reader: Any) -> dict[str, TopicInfo]:
@@ -310,33 +158,12 @@ def _wanted(imu_topic: str | None, joint_topic: str | None) -> dict[str, str]:
     return wanted
 
 
-def _raw_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any]]:
-    """rosbags' message stream with read errors (truncated data) turned into BagError."""
-    from rosbags.rosbag2.errors import ReaderError
-    it = reader.messages(connections=conns)
-    last = None
-    while True:
-        try:
-            item = next(it)
-        except StopIteration:
-            return
-        except (ReaderError, OSError, ValueError, KeyError, IndexError) as exc:
-            where = f' after log time {last} ns' if last is not None else ''
-            raise BagError(f'{path}: corrupt or truncated data{where} '
-                           f'({_oneline(exc)})') from None
-        except Exception as exc:  # noqa: BLE001 - e.g. sqlite/zstd errors from the storage
-            raise BagError(f'{path}: corrupt or truncated data ({type(exc).__name__}: '
-                           f'{_oneline(exc)})') from None
-        last = item[1]
-        yield item
-
-
 def _deserialize(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> Any:
     try:
         return store.deserialize_cdr(raw, conn.msgtype)
     except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt message
         raise BagError(f'{path}: corrupt {conn.msgtype} message on {conn.topic!r} at log '
-                       f'time {t_ns} ns ({type(exc).__name__}: {_oneline(exc)})') from None
+                       f'time {t_ns} ns ({type(exc).__name__}: {oneline(exc)})') from None
 
 
 def _sample(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> ImuSample | JointSample:
@@ -348,6 +175,95 @@ def _sample(store: Any, path: Path, conn: Any, t_ns: int, raw: Any) -> ImuSample
     except InputError as exc:
         raise BagError(f'{path}: bad message on {conn.topic!r} at log time {t_ns} ns: '
                        f'{exc}') from None
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding a block (numpy via .cdr; messages without the fixed layout via rosbags)
+# --------------------------------------------------------------------------------------------
+
+def _decode_imu(store: Any, path: Path, b: RawBlock) -> list[ImuBatch]:
+    """The block's Imu messages as batches, one per run of one frame_id."""
+    cols = cdr.decode_imu(b.buf, b.starts, b.lengths)
+    ok = np.flatnonzero(cols.ok)
+    if ok.size:  # the numpy decode agrees with rosbags on the first message, or is not used
+        k = int(ok[0])
+        ref = _sample(store, path, b.conn, int(b.clocks[k]), b.raw(k))
+        if not (ref.stamp_ns == cols.stamps_ns[k] and ref.frame_id == cols.frame_ids[
+                cols.frame[k]] and _same_bits(ref.gyro_rad_s, cols.gyro_rad_s[k])
+                and _same_bits(ref.accel_m_s2, cols.accel_m_s2[k])):
+            cols.ok[:] = False
+    for k in np.flatnonzero(~cols.ok).tolist():
+        s = _sample(store, path, b.conn, int(b.clocks[k]), b.raw(k))
+        assert isinstance(s, ImuSample)
+        cols.stamps_ns[k], cols.gyro_rad_s[k], cols.accel_m_s2[k] = \
+            s.stamp_ns, s.gyro_rad_s, s.accel_m_s2
+        if s.frame_id not in cols.frame_ids:
+            cols.frame_ids.append(s.frame_id)
+        cols.frame[k] = cols.frame_ids.index(s.frame_id)
+    cuts = [0, *(np.flatnonzero(np.diff(cols.frame)) + 1).tolist(), len(cols.frame)]
+    return [ImuBatch(cols.stamps_ns[a:e], cols.gyro_rad_s[a:e], cols.accel_m_s2[a:e],
+                     cols.frame_ids[int(cols.frame[a])]) for a, e in zip(cuts, cuts[1:])]
+
+
+def _same_bits(a: Any, b: Any) -> bool:
+    return bool(np.array_equal(np.asarray(a, np.float64).view(np.int64),
+                                np.asarray(b, np.float64).view(np.int64)))
+
+
+def _decode_joints(store: Any, path: Path, b: RawBlock) -> list[JointBatch]:
+    """The block's JointState messages as batches, one per run of one layout (names in the
+    message's own order, velocities present or not)."""
+    n = len(b.starts)
+    group = np.full(n, -1, np.int64)
+    rank = np.zeros(n, np.int64)
+    decoded = []
+    for length in np.unique(b.lengths).tolist():  # messages of one length may share a layout
+        sel = np.flatnonzero(b.lengths == length)
+        res = cdr.decode_joint_rows(cdr.gather_rows(b.buf, b.starts[sel], length))
+        if res is None:
+            continue
+        k = int(sel[0])
+        ref = _sample(store, path, b.conn, int(b.clocks[k]), b.raw(k))
+        assert isinstance(ref, JointSample)
+        stamps, names, pos, vel = res
+        if not (ref.stamp_ns == stamps[0] and ref.names == names
+                and _same_bits(ref.positions_rad, pos[0])
+                and (vel is None) == (ref.velocities_rad_s is None)
+                and (vel is None or _same_bits(ref.velocities_rad_s, vel[0]))):
+            continue
+        group[sel], rank[sel] = len(decoded), np.arange(len(sel))
+        decoded.append(res)
+    out: list[JointBatch] = []
+    cuts = [0, *(np.flatnonzero(np.diff(group)) + 1).tolist(), n]
+    for a, e in zip(cuts, cuts[1:]):
+        g = int(group[a])
+        if g >= 0:
+            stamps, names, pos, vel = decoded[g]
+            r = slice(int(rank[a]), int(rank[e - 1]) + 1)
+            out.append(JointBatch(stamps[r], names, pos[r], None if vel is None else vel[r]))
+        else:
+            out += _joint_runs([_sample(store, path, b.conn, int(b.clocks[k]), b.raw(k))
+                                for k in range(a, e)])  # type: ignore[misc]
+    return out
+
+
+def _joint_runs(samples: list[JointSample]) -> list[JointBatch]:
+    """Samples decoded one by one as batches, one per run of one name list and velocities
+    present or not (each sample keeps its own names and velocities)."""
+    out = []
+    k = 0
+    while k < len(samples):
+        key = (samples[k].names, samples[k].velocities_rad_s is None)
+        j = k + 1
+        while j < len(samples) and (samples[j].names,
+                                    samples[j].velocities_rad_s is None) == key:
+            j += 1
+        run = samples[k:j]
+        vel = None if key[1] else np.array([s.velocities_rad_s for s in run], float)
+        out.append(JointBatch(np.array([s.stamp_ns for s in run], np.int64), key[0],
+                              np.array([s.positions_rad for s in run], float), vel))
+        k = j
+    return out
 
 
 def iter_bag(path: str | os.PathLike[str], imu_topic: str | None = DEFAULT_IMU_TOPIC,
@@ -516,13 +432,16 @@ def iter_bag_batches(path: str | os.PathLike[str], imu_topic: str | None = DEFAU
 
 
 Part = ImuBatch | JointBatch
+ITER_CHUNK_MSGS = 2048  # messages decoded together by iter_bag (~0.7 MB of Imu messages)
+READ_WINDOW_MSGS = 65536  # messages per window of read_bag
 
 
 def _ordered_windows(p: Path, imu_topic: str | None, joint_topic: str | None,
                      window_msgs: int, reorder_window_s: float,
                      stats: dict[str, ReorderStats] | None) -> Iterator[dict[str, list[Any]]]:
-    """Per window of ``window_msgs`` raw messages: each topic's decoded batches that its
-    reorder window releases (``{topic: [batch, ...]}``), and at the end what it still holds.
+    """Per window of about ``window_msgs`` raw messages: each topic's decoded batches that
+    its reorder window releases (``{topic: [batch, ...]}``), and at the end what it still
+    holds. The one message-gathering loop of every read path.
 
     The IMU samples are released no later than the joint states stamped before them
     (:class:`_JointGate`), so a consumer that takes each window's joint states first never
@@ -538,28 +457,37 @@ def _ordered_windows(p: Path, imu_topic: str | None, joint_topic: str | None,
             stats.update({t: o.stats for t, o in orders.items()})
         gate = _JointGate(orders[imu_topic], orders[joint_topic]) \
             if imu_topic and joint_topic else None
-        pending: dict[str, list[Any]] = {t: [] for t in wanted}
-        clocks: dict[str, list[int]] = {t: [] for t in wanted}
-        first: dict[str, tuple[Any, int]] = {}
+
+        def released(out: dict[str, list[Any]]) -> dict[str, list[Any]]:
+            if gate is not None:
+                out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
+            return out
+
+        parts: dict[str, list[Any]] = {t: [] for t in wanted}
+        clocks: dict[str, list[NDArray[np.int64]]] = {t: [] for t in wanted}
         count = 0
-        for conn, t_ns, raw in _raw_messages(reader, p, conns):
-            topic = conn.topic
-            raws = pending[topic]
-            if not raws:
-                first[topic] = (conn, t_ns)
-            raws.append(raw)
-            clocks[topic].append(t_ns)
-            count += 1
+
+        def window() -> dict[str, list[Any]]:
+            out = {t: orders[t].push(parts[t], np.concatenate(clocks[t]) if clocks[t] else
+                                     np.zeros(0, np.int64)) for t in wanted}
+            for t in wanted:
+                parts[t], clocks[t] = [], []
+            return released(out)
+
+        # raw windows are decoded at once (their bytes are valid until the next is asked
+        # for) and gathered, decoded, into windows of window_msgs
+        for raw in raw_windows(reader, p, conns, window_msgs):
+            for topic, blocks in raw.items():
+                decode = _decode_joints if topic == joint_topic else _decode_imu
+                for b in blocks:
+                    parts[topic] += decode(store, p, b)
+                    clocks[topic].append(b.clocks)
+                    count += len(b.starts)
+            del raw, blocks, b
             if count >= window_msgs:
-                out = _decode_window(store, p, pending, clocks, first, orders, joint_topic)
-                if gate is not None:
-                    out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
-                yield out
+                yield window()
                 count = 0
-        out = _decode_window(store, p, pending, clocks, first, orders, joint_topic)
-        if gate is not None:
-            out[imu_topic] = gate.take(out[imu_topic])  # type: ignore[index]
-        yield out
+        yield window()
         out = {t: o.flush() for t, o in orders.items()}
         if gate is not None:
             out[imu_topic] = gate.flush(out[imu_topic])  # type: ignore[index]
@@ -614,27 +542,6 @@ class _JointGate:
         out = _merge_parts(self.held + parts)
         self.held = []
         return out
-
-
-def _decode_window(store: Any, path: Path, pending: dict[str, list[Any]],
-                   clocks: dict[str, list[int]], first: dict[str, tuple[Any, int]],
-                   orders: dict[str, '_TopicOrder'], joint_topic: str | None
-                   ) -> dict[str, list[Any]]:
-    """Decode the window's messages of each topic and pass them through its reorder window;
-    empties ``pending`` and ``clocks``."""
-    out: dict[str, list[Any]] = {}
-    for topic, raws in pending.items():
-        if not raws:
-            out[topic] = []
-            continue
-        conn, t0 = first[topic]
-        parts: list[Any] = list(_window_joints(store, path, conn, t0, raws)
-                                if topic == joint_topic else
-                                _window_imu(store, path, conn, t0, raws))
-        out[topic] = orders[topic].push(parts, np.array(clocks[topic], np.int64))
-        pending[topic] = []
-        clocks[topic] = []
-    return out
 
 
 class _TopicOrder:
@@ -733,101 +640,6 @@ def _take_parts(parts: list[Any], pos: NDArray[np.int64]) -> list[Any]:
     return out
 
 
-def _window_imu(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
-                ) -> Iterator[ImuBatch]:
-    first = _sample(store, path, conn, t0, raws[0])
-    rows = _rows(raws)
-    batch = _unpack_imu(rows) if rows is not None else None
-    if batch is not None and _same_sample(batch, first):
-        yield batch
-        return
-    samples = [_sample(store, path, conn, t0, r) for r in raws]
-    k = 0
-    while k < len(samples):  # runs of one frame_id
-        j = k + 1
-        while j < len(samples) and samples[j].frame_id == samples[k].frame_id:
-            j += 1
-        yield ImuBatch.from_samples(samples[k:j])  # type: ignore[arg-type]
-        k = j
-
-
-def _fast_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
-                 ) -> JointBatch | None:
-    """The numpy decode of a run of JointState messages of one layout, or None when the
-    messages differ in layout (the first one is decoded by rosbags and checked either way)."""
-    first_msg = _deserialize(store, path, conn, t0, raws[0])
-    _sample(store, path, conn, t0, raws[0])
-    rows = _rows(raws)
-    return _unpack_joints(rows, first_msg) if rows is not None else None
-
-
-def _window_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]
-                   ) -> Iterator[JointBatch]:
-    batch = _fast_joints(store, path, conn, t0, raws)
-    if batch is not None:
-        yield batch
-        return
-    samples: list[JointSample] = [_sample(store, path, conn, t0, r)  # type: ignore[misc]
-                                  for r in raws]
-    k = 0
-    while k < len(samples):  # runs of one name list and one position count
-        names = samples[k].names
-        n_pos = np.shape(samples[k].positions_rad)
-        j = k + 1
-        while j < len(samples) and samples[j].names == names \
-                and np.shape(samples[j].positions_rad) == n_pos:
-            j += 1
-        run = samples[k:j]
-        vel = None
-        if all(s.velocities_rad_s is not None
-               and np.shape(s.velocities_rad_s) == n_pos for s in run):
-            vel = np.array([s.velocities_rad_s for s in run], float)
-        pos = np.array([s.positions_rad for s in run], float)
-        if pos.ndim != 2:  # positions not one per name: one sample per batch (guard rejects)
-            for s in run:
-                yield JointBatch(np.array([s.stamp_ns], np.int64), s.names,
-                                 np.asarray(s.positions_rad, float)[None], None)
-        else:
-            yield JointBatch(np.array([s.stamp_ns for s in run], np.int64), names, pos, vel)
-        k = j
-
-
-ITER_CHUNK_MSGS = 2048  # messages decoded together by iter_bag (~0.7 MB of Imu messages)
-
-
-def _same_sample(batch: ImuBatch, first: ImuSample | JointSample) -> bool:
-    """Whether the fast decode's first sample equals rosbags' decode of the same message."""
-    assert isinstance(first, ImuSample)
-    s = batch.sample(0)
-    return (s.stamp_ns == first.stamp_ns and s.frame_id == first.frame_id
-            and np.array_equal(s.gyro_rad_s, first.gyro_rad_s, equal_nan=True)
-            and np.array_equal(s.accel_m_s2, first.accel_m_s2, equal_nan=True))
-
-
-def _joint_batch_slow(samples: list[JointSample], path: Path, topic: str) -> JointBatch:
-    """Stack joint samples onto the first sample's name order (names may be permuted)."""
-    names = samples[0].names
-    index = {n: i for i, n in enumerate(names)}
-    m, n = len(samples), len(names)
-    pos = np.empty((m, n))
-    vel = np.full((m, n), np.nan)
-    any_vel = False
-    for k, s in enumerate(samples):
-        if s.names != names:
-            if sorted(s.names) != sorted(names):
-                raise BagError(f'{path}: joint names on {topic!r} change at stamp '
-                               f'{s.stamp_ns} ns: {list(s.names)} vs {list(names)}')
-            order = [index[x] for x in s.names]
-        else:
-            order = list(range(n))
-        pos[k, order] = s.positions_rad
-        if s.velocities_rad_s is not None:
-            vel[k, order] = s.velocities_rad_s
-            any_vel = True
-    stamps = np.array([s.stamp_ns for s in samples], np.int64)
-    return JointBatch(stamps, names, pos, vel if any_vel else None)
-
-
 def read_bag(path: str | os.PathLike[str], imu_topic: str = DEFAULT_IMU_TOPIC,
              joint_topic: str | None = DEFAULT_JOINT_TOPIC,
              reorder_window_s: float = DEFAULT_REORDER_WINDOW_S,
@@ -835,66 +647,27 @@ def read_bag(path: str | os.PathLike[str], imu_topic: str = DEFAULT_IMU_TOPIC,
              ) -> tuple[ImuBatch, JointBatch]:
     """Read a whole bag into an :class:`ImuBatch` and a :class:`JointBatch`.
 
-    Samples keep their header stamps; each topic is in header-stamp order through the same
-    reorder window as :func:`iter_bag` (``reorder_window_s``; what it did goes into
-    ``reorder_stats`` if given). Joint samples whose names are a permutation of the first
-    message's names are reordered to it; missing velocities of some messages are NaN (all
-    missing: ``None``). With ``joint_topic=None`` the joint batch is empty. Raises
-    :class:`BagError` as :func:`iter_bag` does.
+    The batches of :func:`iter_bag_batches` joined: samples keep their header stamps; each
+    topic is in header-stamp order through the same reorder window as :func:`iter_bag`
+    (``reorder_window_s``; what it did goes into ``reorder_stats`` if given). Joint samples
+    whose names are a permutation of the first message's names are reordered to it; missing
+    velocities of some messages are NaN (all missing: ``None``). With ``joint_topic=None``
+    the joint batch is empty. Raises :class:`BagError` as :func:`iter_bag` does.
     """
-    p = Path(path)
-    wanted = _wanted(imu_topic, joint_topic)
-    window_s = _check_window(reorder_window_s)
     imu_parts: list[ImuBatch] = []
     joint_parts: list[JointBatch] = []
-    orders = {t: _TopicOrder(window_s) for t in wanted}
-    if reorder_stats is not None:
-        reorder_stats.clear()
-        reorder_stats.update({t: o.stats for t, o in orders.items()})
-
-    def keep(topic: str, batches: list[Any]) -> None:
-        (imu_parts if topic == imu_topic else joint_parts).extend(batches)
-
-    def flush(topic: str) -> None:
-        """Decode the pending raw messages of ``topic`` (bounds the raw bytes held)."""
-        raws = pending[topic]
-        if not raws:
-            return
-        conn, t0 = first[topic]
-        batch = (_read_imu(store, p, conn, t0, raws) if topic == imu_topic else
-                 _read_joints(store, p, conn, t0, raws))
-        keep(topic, orders[topic].push([batch], np.array(clocks[topic], np.int64)))
-        pending[topic] = []
-        clocks[topic] = []
-
-    with _open_reader(p) as reader:
-        conns = _connections(reader, p, wanted)
-        store = _typestore()
-        pending: dict[str, list[Any]] = {t: [] for t in wanted}
-        clocks: dict[str, list[int]] = {t: [] for t in wanted}
-        first: dict[str, tuple[Any, int]] = {}
-        for conn, t_ns, raw in _raw_messages(reader, p, conns):
-            topic = conn.topic
-            raws = pending[topic]
-            if not raws:
-                first[topic] = (conn, t_ns)
-            raws.append(raw)
-            clocks[topic].append(t_ns)
-            if len(raws) >= READ_CHUNK_MSGS:
-                flush(topic)
-        for topic in wanted:
-            flush(topic)
-            keep(topic, orders[topic].flush())
+    for b in iter_bag_batches(path, imu_topic, joint_topic, READ_WINDOW_MSGS,
+                              reorder_window_s, reorder_stats):
+        (imu_parts if isinstance(b, ImuBatch) else joint_parts).append(b)
     imu = _concat_imu(imu_parts)
     if joint_topic is None:
         return imu, JointBatch(np.zeros(0, np.int64), (), np.zeros((0, 0)), None)
-    return imu, _concat_joints(joint_parts, p, joint_topic)
-
-
-READ_CHUNK_MSGS = 65536  # raw messages per topic decoded together by read_bag
+    return imu, _concat_joints(joint_parts, Path(path), joint_topic)
 
 
 def _concat_imu(parts: list[ImuBatch]) -> ImuBatch:
+    if not parts:
+        return ImuBatch.from_samples([])
     if len(parts) == 1:
         return parts[0]
     return ImuBatch(np.concatenate([b.stamps_ns for b in parts]),
@@ -923,32 +696,6 @@ def _concat_joints(parts: list[JointBatch], path: Path, topic: str) -> JointBatc
         vel.append(np.full_like(b.positions_rad, np.nan) if v is None else v[:, order])
     return JointBatch(np.concatenate([b.stamps_ns for b in parts]), names,
                       np.concatenate(pos), np.concatenate(vel) if any_vel else None)
-
-
-def _rows(raws: list[Any]) -> np.ndarray | None:
-    """The messages as one (N, length) uint8 array if they all have one length."""
-    length = len(raws[0])
-    if any(len(r) != length for r in raws):
-        return None
-    return np.frombuffer(b''.join(raws), np.uint8).reshape(len(raws), length)
-
-
-def _read_imu(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]) -> ImuBatch:
-    first = _sample(store, path, conn, t0, raws[0])  # also validates that it decodes at all
-    rows = _rows(raws)
-    batch = _unpack_imu(rows) if rows is not None else None
-    if batch is not None and _same_sample(batch, first):
-        return batch
-    samples = [_sample(store, path, conn, t0, r) for r in raws]
-    return ImuBatch.from_samples(samples)  # type: ignore[arg-type]
-
-
-def _read_joints(store: Any, path: Path, conn: Any, t0: int, raws: list[Any]) -> JointBatch:
-    batch = _fast_joints(store, path, conn, t0, raws)
-    if batch is not None:
-        return batch
-    samples = [_sample(store, path, conn, t0, r) for r in raws]
-    return _joint_batch_slow(samples, path, conn.topic)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------------------------
@@ -1046,9 +793,11 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
     cov = covariances or ImuCovariances.unknown()
     store = _typestore()
     try:
-        imu_rows = _pack_imu(imu, fid, cov)
-        joint_raws = [store.serialize_cdr(joint_state_msg_from_sample(s, store),
-                                          JOINT_STATE_MSGTYPE) for s in joints]
+        imu_rows = cdr.pack_imu(imu.stamps_ns, imu.gyro_rad_s, imu.accel_m_s2, fid,
+                                cov.angular_velocity_rad2_s2, cov.linear_acceleration_m2_s4)
+        joint_raws = [cdr.joint_state_cdr(s.stamp_ns, '', s.names, s.positions_rad,
+                                          () if s.velocities_rad_s is None
+                                          else s.velocities_rad_s) for s in joints]
     except InputError as exc:
         raise BagError(f'{p}: {exc}') from None
     stamps = np.concatenate([imu.stamps_ns.astype(np.int64),
@@ -1097,7 +846,7 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
         raise
     except Exception as exc:
         remove_bag(tmp)
-        raise BagError(f'{p}: cannot write bag ({type(exc).__name__}: {_oneline(exc)})') \
+        raise BagError(f'{p}: cannot write bag ({type(exc).__name__}: {oneline(exc)})') \
             from None
     except BaseException:
         remove_bag(tmp)

@@ -18,10 +18,12 @@ The writers build a message of either kind. ``target`` selects it:
 Stamps are integer nanoseconds; ``builtin_interfaces/Time`` holds ``sec`` (int32) and
 ``nanosec`` (uint32, ``0 <= nanosec < 1e9``), so the representable range is
 ``[-2**31 s, 2**31 s)``. Semantics of the values: CONTRACT section 1.
+
+Raw CDR bytes (the live nodes' fast path, the bag reader and writer) are :mod:`.cdr`'s;
+``imu_cdr`` and ``imu_fields_from_cdr`` are re-exported here for the nodes.
 """
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,8 +32,8 @@ from numpy.typing import ArrayLike
 
 from ..core.errors import InputError
 from ..core.types import FloatArray, ImuSample, JointSample
+from .cdr import NS_PER_S, imu_cdr, imu_fields_from_cdr  # noqa: F401 - the raw-bytes path
 
-NS_PER_S = 1_000_000_000
 STAMP_MIN_NS = -(2 ** 31) * NS_PER_S
 STAMP_MAX_NS = (2 ** 31) * NS_PER_S - 1
 
@@ -263,61 +265,3 @@ def joint_state_msg_from_sample(sample: JointSample, target: Any = None,
     msg.position = pos.tolist()
     msg.velocity = vel.tolist()
     return msg
-
-
-
-# ----------------------------------------------------------------------------- raw CDR
-# sensor_msgs/Imu in little-endian XCDR1 (what rmw publishes and takes): 4-byte
-# encapsulation header, then stamp (int32 sec, uint32 nanosec), frame_id (uint32 length with
-# the NUL, bytes, NUL), padding to 8, 37 float64: orientation 4, its covariance 9, angular
-# velocity 3, covariance 9, linear acceleration 3, covariance 9. Hand-written with struct:
-# rclpy's (de)serialisation into Python message objects costs ~30-60 us per Imu, which a
-# 5 kHz node cannot afford; checked against rclpy.serialization in test_msg_adapters_cdr.
-_CDR_LE = b'\x00\x01\x00\x00'
-_IMU_HEAD = struct.Struct('<iII')
-_IMU_STRUCTS: dict[str, tuple[struct.Struct, bytes, int]] = {}
-
-
-def _imu_struct(frame_id: str) -> tuple[struct.Struct, bytes, int]:
-    """(Struct for the whole message, encoded frame_id, offset of the 37 doubles)."""
-    entry = _IMU_STRUCTS.get(frame_id)
-    if entry is None:
-        name = frame_id.encode() + b'\x00'
-        start = 12 + len(name)
-        pad = -start % 8
-        entry = (struct.Struct(f'<4siII{len(name)}s{pad}x37d'), name, 4 + start + pad)
-        if len(_IMU_STRUCTS) < 64:
-            _IMU_STRUCTS[frame_id] = entry
-    return entry
-
-
-def imu_fields_from_cdr(data: bytes) -> tuple[int, str, tuple[float, float, float],
-                                                tuple[float, float, float]]:
-    """``(stamp_ns, frame_id, gyro, accel)`` of a serialised ``sensor_msgs/Imu``.
-
-    Raises
-    ------
-    InputError
-        Not a little-endian CDR Imu (wrong header, too short).
-    """
-    if len(data) < 16 or data[:4] != _CDR_LE:
-        raise InputError('not a little-endian CDR sensor_msgs/Imu')
-    sec, nanosec, n = _IMU_HEAD.unpack_from(data, 4)
-    start = 16 + n
-    off = start + (-(start - 4) % 8)
-    if off + 37 * 8 > len(data) or n == 0:
-        raise InputError('truncated CDR sensor_msgs/Imu')
-    g = struct.unpack_from('<3d', data, off + 13 * 8)
-    a = struct.unpack_from('<3d', data, off + 25 * 8)
-    return sec * NS_PER_S + nanosec, data[16:start - 1].decode(errors='replace'), g, a
-
-
-def imu_cdr(stamp_ns: int, frame_id: str, gyro_rad_s: Any, accel_m_s2: Any,
-            angular_velocity_cov: Any, linear_acceleration_cov: Any) -> bytes:
-    """A serialised ``sensor_msgs/Imu`` (identity orientation, ``orientation_covariance[0] =
-    -1``, REP-145) to publish as raw bytes (``Publisher.publish(bytes)``)."""
-    sec, nanosec = time_fields_from_ns(stamp_ns)
-    st, name, _ = _imu_struct(frame_id)
-    return st.pack(_CDR_LE, sec, nanosec, len(name), name,
-                   0.0, 0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                   *gyro_rad_s, *angular_velocity_cov, *accel_m_s2, *linear_acceleration_cov)
