@@ -253,7 +253,8 @@ class RunLedger:
         and then saturates, which a straight line through all pairs does not show; so also
         ``q = sum y / sum |t_j - t_i|`` over the pairs at most :data:`WALK_SHORT_S` apart
         (the walk that explains their scatter), counted when ``mean y`` stands out (> 2
-        standard errors: a false detection only widens Q a little); the larger of the two. Plans that never return to a pose give 0."""
+        standard errors: a false detection only widens Q a little); the larger of the two.
+        Plans that never return to a pose give 0."""
         wins = self.windows()
         if len(wins) < 4 or self._dt_ns <= 0:
             return 0.0, 0.0, 0
