@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -38,27 +39,37 @@ def test_node_on_a_world_bag_equals_replay(tmp_path: Path) -> None:
                         '--fixture', str(truth.fixture_path), '--output', str(off), '--force'],
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    live = tmp_path / 'live.yaml'
-    node = start_node('calibration', {
-        'fixture': str(truth.fixture_path), 'output_file': str(live), 'save_on_shutdown': True,
-        'force_save': True, 'queue_depth': 5000}, tmp_path)
-    player = None
-    try:
-        player = subprocess.run(
-            [sys.executable, '-m', 'imu_calib_ros.nodes.bag_player', '--ros-args', '-p',
-             f'bag:={bag}', '-p', 'rate:=5.0', '-p', 'wait_for_subscribers:=1', '-p',
-             'wait_timeout_s:=90.0'], cwd=ROOT, capture_output=True, text=True, timeout=200)
-        assert player.returncode == 0, player.stdout[-2000:] + player.stderr[-2000:]
-    finally:
-        log = stop_node(node, signal.SIGINT, wait_s=120.0)
-    assert node.returncode == 0, log[-3000:]
-    a, b = CalibrationResult.load(live), CalibrationResult.load(off)
-    account = yaml.safe_load(live.read_text())['imu_calibration']['provenance']['input']
-    # the comparison holds for the same input: every sample reached the estimator
+    # every sample must reach the estimator for the comparison to hold; on a busy 2-core
+    # machine (the suite's other worker) even 3x lost ~6 % on the way (counted: 'partial'),
+    # so a partial run is played once more at real time rather than compared
+    for rate in (2.0, 1.0):
+        live, log, account = _play(bag, truth, tmp_path, rate)
+        if account['partial'] is False:
+            break
     assert account['partial'] is False, account
+    a, b = CalibrationResult.load(live), CalibrationResult.load(off)
     s = b.sigma.as_vector()
     on = s > 0
     z = np.abs(a.errors.as_vector() - b.errors.as_vector())[on] / s[on]
     # measured 0 (same floats, same order); rounding of the bag's float64 only
     assert z.max() < 1e-3, (z.max(), log[-2000:])
     np.testing.assert_allclose(a.sigma.as_vector(), s, rtol=1e-6, atol=0)
+
+
+def _play(bag: Path, truth: Any, tmp_path: Path, rate: float) -> tuple[Path, str, dict]:
+    """Play ``bag`` at ``rate`` into a calibration node; (its file, its log, input account)."""
+    live = tmp_path / f'live_{rate:g}.yaml'
+    node = start_node('calibration', {
+        'fixture': str(truth.fixture_path), 'output_file': str(live),
+        'save_on_shutdown': True, 'force_save': True, 'queue_depth': 5000}, tmp_path)
+    try:
+        player = subprocess.run(
+            [sys.executable, '-m', 'imu_calib_ros.nodes.bag_player', '--ros-args', '-p',
+             f'bag:={bag}', '-p', f'rate:={rate}', '-p', 'wait_for_subscribers:=1', '-p',
+             'wait_timeout_s:=90.0'], cwd=ROOT, capture_output=True, text=True, timeout=400)
+        assert player.returncode == 0, player.stdout[-2000:] + player.stderr[-2000:]
+    finally:
+        log = stop_node(node, signal.SIGINT, wait_s=120.0)
+    assert node.returncode == 0, log[-3000:]
+    account = yaml.safe_load(live.read_text())['imu_calibration']['provenance']['input']
+    return live, log, account

@@ -102,9 +102,11 @@ def test_calibration_node_on_the_arm_from_robot_description(ros: Node, tmp_path:
     cal = start_node('calibration', {'fixture': 'robot_description', **CHAIN,
                                      'use_sim_time': True, 'output_file': str(out),
                                      'imu_grade': 'mems_mti1', 'force_save': True}, tmp_path)
+    # speed 2 (was 4): under the full suite on 2 cores, 4x dropped enough batches that the
+    # gyro scale z sigma stayed at 24 % of its prior
     sim = start_node('turntable_sim', {'fixture': str(ARM), **CHAIN, 'plan': str(plan),
                                        'imu_grade': 'mems_mti1', 'imu_rate_hz': 100.0,
-                                       'joint_rate_hz': 100.0, 'speed': 4.0,
+                                       'joint_rate_hz': 100.0, 'speed': 2.0,
                                        'truth_file': str(truth), 'wait_for_subscribers': 1},
                      tmp_path)
     diags: list[Any] = []
