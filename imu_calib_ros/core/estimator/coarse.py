@@ -168,30 +168,42 @@ def white_noise_density(x: FloatArray, dt_s: float) -> float:
     return float(np.sqrt(np.mean(np.square(out))))
 
 
-def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: float) -> float:
-    """Bias random-walk density from how the stationary-window residuals wander (item 5).
+def pair_walk(t_mid_s: FloatArray, T_s: FloatArray, means: FloatArray, white: float,
+              i: NDArray[np.intp], j: NDArray[np.intp]) -> tuple[float, FloatArray, FloatArray]:
+    """The bias random walk from pairs ``(i, j)`` of stationary-window means (item 5).
 
-    Between two windows the residual (mean output minus the coarse model) changes by white
-    noise, by the coarse model's pose-dependent misfit (a constant scatter, whatever the time
-    between) and by the bias walk (growing with the time between): ``E[(r_j - r_i)^2] -
-    s_i^2 - s_j^2 = a + q |t_j - t_i|`` over all pairs, fitted by least squares. Only a slope
-    that stands out (t > 3, its standard error that of n windows, not of the n^2/2 pairs
-    that share them) counts; a Gauss-Markov instability shows as the walk over the
-    plan's length. 0 with fewer than four windows.
+    Between two windows a mean changes by white noise (``white^2 / T`` each), by a constant
+    scatter (a pose-dependent misfit, a misjudged white noise) and by the bias walk, growing
+    with the time between: ``y = E[(m_j - m_i)^2] - s_i^2 - s_j^2 = a + q |t_j - t_i|``,
+    fitted by least squares. Only a slope that stands out counts (t > 3, its standard error
+    that of the windows the pairs use, not of the pairs that share them).
+
+    Returns ``(q or 0, y, |t_j - t_i|)`` per pair (PSD per second; ``y`` and the time
+    differences for callers that fit more).
     """
+    s2 = white ** 2 / T_s
+    y = np.mean((means[j] - means[i]) ** 2, axis=1) - s2[i] - s2[j]
+    dt = np.abs(t_mid_s[j] - t_mid_s[i])
+    X = np.column_stack([np.ones(len(i)), dt])
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    r = y - X @ beta
+    used = len(set(i.tolist()) | set(j.tolist()))
+    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / used
+    q, sq = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
+    return (q if q > 0 and q > 3 * sq else 0.0), y, dt
+
+
+def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: float) -> float:
+    """Bias random-walk density [per sqrt(s)] from how the stationary-window residuals (mean
+    output minus the coarse model) wander, over all pairs of windows (:func:`pair_walk`); a
+    Gauss-Markov instability shows as the walk over the plan's length. 0 with fewer than
+    four windows."""
     if len(wins) < 4:
         return 0.0
     tm = np.array([(w.t0_ns + w.t1_ns) * 0.5e-9 for w in wins])
-    s2 = white ** 2 / dt / np.array([w.n for w in wins], float)
+    T = dt * np.array([w.n for w in wins], float)
     i, j = np.triu_indices(len(wins), 1)
-    y = np.mean((resid[j] - resid[i]) ** 2, axis=1) - s2[i] - s2[j]
-    X = np.column_stack([np.ones(len(i)), np.abs(tm[j] - tm[i])])
-    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-    r = y - X @ beta
-    # the n (n - 1) / 2 pairs share n windows: the standard error as if from n samples
-    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / len(wins)
-    q, sq = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
-    return math.sqrt(q) if q > 0 and q > 3 * sq else 0.0
+    return math.sqrt(pair_walk(tm, T, resid, white, i, j)[0])
 
 
 def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatArray:

@@ -57,9 +57,9 @@ from .ekf import ErrorStateFilter
 from .history import EstimateHistory
 from .health import (NisWindow, bridge_gap, numerical_fault, restart_covariance,
                      rollback_covariance, snapshots, state_out_of_range, status, widen_for_gaps)
-from .measurements import (MEAS_SCALE, chain_attitude_covariance, chain_velocity_covariance,
-                           encoder_attitude, lengthened_chains, noise_covariance, to_filter_units,
-                           zero_velocity)
+from .measurements import (MEAS_SCALE, MEASUREMENT_DOF, chain_attitude_covariance,
+                           chain_velocity_covariance, encoder_attitude, lengthened_chains,
+                           noise_covariance, to_filter_units, zero_velocity)
 from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_hint,
                     white_noise_densities, white_noise_from_window)
 from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_correction, prior_point,
@@ -73,7 +73,6 @@ __all__ = ['CalibrationEstimator', 'Estimate', 'prior_sigmas', 'CONTRACT_KEYS', 
 
 FloatArray = NDArray[np.float64]
 _LOG = logging.getLogger('imu_calib_ros.estimator')
-MEASUREMENT_DOF = 3  # every measurement update is 3-D (velocity, attitude)
 MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS to count
 
 

@@ -25,6 +25,7 @@ from .error_model import StateLayout
 
 FloatArray = NDArray[np.float64]
 MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the filter
+MEASUREMENT_DOF = 3  # every measurement update is 3-D (velocity, attitude)
 
 
 def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad_s: FloatArray,

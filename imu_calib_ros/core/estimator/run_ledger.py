@@ -28,7 +28,7 @@ from ..input_guard import IMU_REASONS
 from ..rotation import skew
 from ..types import ImuBatch, JointBatch, JointSample
 from . import error_model as em
-from .coarse import static_windows
+from .coarse import pair_walk, static_windows
 from .estimator import RAW_PRIOR
 from .selfcheck import (NisTotals, RunEvidence, SelfCheckConfig, Verdict, WindowStatistics,
                         judge, window_statistics)
@@ -246,10 +246,8 @@ class RunLedger:
         Only pairs of windows at the same pose (every joint within :data:`SAME_POSE_RAD`):
         there the compensation is the same function of the same input, so whatever the
         calibration's error, the difference of the two raw means is white noise plus the
-        bias change between them. ``E[d^2] - s_i^2 - s_j^2 = a + q |t_j - t_i|`` over the
-        pairs (``a`` absorbs a misjudged white noise), by least squares; a slope counts when
-        it stands out (t > 3, its standard error that of the windows, not of the pairs that
-        share them). A Gauss-Markov instability of ~100 s (MEMS) grows over the first pairs
+        bias change between them, fitted as ``a + q |t_j - t_i|`` (:func:`.coarse.pair_walk`,
+        the coarse start's fit over all pairs). A Gauss-Markov instability of ~100 s (MEMS) grows over the first pairs
         and then saturates, which a straight line through all pairs does not show; so also
         ``q = sum y / sum |t_j - t_i|`` over the pairs at most :data:`WALK_SHORT_S` apart
         (the walk that explains their scatter), counted when ``mean y`` stands out (> 2
@@ -267,25 +265,17 @@ class RunLedger:
         n_g, n_a, _, _ = (float(v) for v in self.est.assumed_noise())
         T = np.array([x[5] for x in wins], float) * self._dt_ns * 1e-9
         tm = np.array([0.5 * (x[0] + x[1]) * 1e-9 for x in wins])
-        X = np.column_stack([np.ones(len(i)), np.abs(tm[j] - tm[i])])
         out = []
         for k, white in ((3, n_g), (4, n_a)):
-            m = np.array([x[k] for x in wins])
-            s2 = white ** 2 / T
-            y = np.mean((m[j] - m[i]) ** 2, axis=1) - s2[i] - s2[j]
-            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-            r = y - X @ beta
-            cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / used
-            slope, se = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
-            q_line = slope if slope > 0 and slope > 3 * se else 0.0
-            short = X[:, 1] <= WALK_SHORT_S
+            q_line, y, dt = pair_walk(tm, T, np.array([x[k] for x in wins]), white, i, j)
+            short = dt <= WALK_SHORT_S
             q_short = 0.0
             if short.sum() >= 6:
                 ys = y[short]
                 used_s = len(set(i[short].tolist()) | set(j[short].tolist()))
                 se_s = float(np.std(ys)) / math.sqrt(max(used_s, 1))
                 if float(np.mean(ys)) > 2 * se_s:
-                    q_short = float(ys.sum() / X[short, 1].sum())
+                    q_short = float(ys.sum() / dt[short].sum())
             out.append(max(q_line, q_short))
         return out[0], out[1], int(len(i))
 

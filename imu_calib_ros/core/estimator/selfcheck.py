@@ -75,12 +75,13 @@ from numpy.typing import NDArray
 from scipy.linalg import eigh
 from scipy.stats import binom, chi2, norm
 
+from .measurements import MEASUREMENT_DOF
+
 FloatArray = NDArray[np.float64]
 
 #: the statistical checks the false-alarm probability is shared between (Sidak)
 STATISTICAL_CHECKS = ('nis.velocity', 'nis.attitude', 'gate', 'windows.chi2', 'windows.worst',
                       'plausible')
-MEASUREMENT_DOF = 3  # every measurement of the estimator is 3-D (velocity, attitude)
 MIN_CALIBRATION_SHARE = 1.0  # windows.worst: directions where J P J^T >= the window noise
 
 
