@@ -28,6 +28,8 @@ def stop_node(proc: subprocess.Popen[bytes], sig: int = signal.SIGINT,
         try:
             proc.wait(wait_s)
         except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGUSR1)  # the node's stacks into its output (run_node)
+            time.sleep(1.0)
             proc.kill()
             proc.wait(5)
     return proc.stdout.read().decode(errors='replace') if proc.stdout else ''

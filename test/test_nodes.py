@@ -65,10 +65,19 @@ def known_calibration(tmp: Path, frame_id: str = 'imu_link') -> tuple[Calibratio
     return CalibrationResult.load(path), path
 
 
-def feed_imu(ros: Node, pub: Any, stamps: Any, gyro: Any, accel: Any) -> None:
-    """Publish raw IMU samples at ~500 Hz of wall time, spinning the test node between them."""
+def feed_imu(ros: Node, pub: Any, stamps: Any, gyro: Any, accel: Any,
+             got: list[Any] | None = None, in_flight: int = 50) -> None:
+    """Publish raw IMU samples at ~500 Hz of wall time, spinning the test node between them.
+
+    With ``got`` (the node's output as it arrives) at most ``in_flight`` samples are ahead of
+    it: on a loaded machine the node's best-effort input and its reliable keep-last output
+    otherwise drop a burst that the test never meant to be an overload test (the stamps, not
+    the wall-clock pace, carry the rate the node measures).
+    """
     from sensor_msgs.msg import Imu
     for k in range(len(stamps)):
+        if got is not None and k - len(got) >= in_flight:
+            spin_until(ros, lambda: k - len(got) < in_flight, 10.0)
         pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
                                                   'imu_link'), Imu))
         rclpy.spin_once(ros, timeout_sec=0.0)
@@ -95,7 +104,7 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
         t = (stamps - stamps[0]) * 1e-9
         gyro = np.c_[np.sin(3 * t), 0.5 * np.cos(2 * t), 0.2 * t] + rng.normal(0, 1e-3, (n, 3))
         accel = np.c_[0.1 * t, -0.2 + 0 * t, 9.81 + 0 * t] + rng.normal(0, 1e-2, (n, 3))
-        feed_imu(ros, pub, stamps, gyro, accel)
+        feed_imu(ros, pub, stamps, gyro, accel, got)
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
     finally:
         log = stop(proc)
@@ -310,7 +319,7 @@ def test_calibration_node_detects_the_imu_rate(ros: Node, tmp_path: Path) -> Non
         assert spin_until(ros, lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 60.0), stop(proc)
         time.sleep(0.5)
-        feed_imu(ros, pub, stamps, gyro, accel)
+        feed_imu(ros, pub, stamps, gyro, accel, got)
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
 
         def last_values() -> dict[str, str]:
@@ -374,7 +383,7 @@ def test_compensator_warns_when_the_configured_rate_is_wrong(ros: Node, tmp_path
                           and sub.get_publisher_count() > 0, 60.0), stop(proc)
         time.sleep(0.5)
         feed_imu(ros, pub, 9_000_000_000 + 10_000_000 * np.arange(n), np.zeros((n, 3)),
-                 np.tile([0.0, 0.0, 9.8], (n, 1)))
+                 np.tile([0.0, 0.0, 9.8], (n, 1)), got)
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
         assert spin_until(ros, lambda: comp_status() is not None
                           and comp_status().level == b'\x01', 30.0)

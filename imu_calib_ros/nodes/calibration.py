@@ -164,7 +164,8 @@ class CalibrationNodeConfig:
     log_throttle_s: float = field(default=5.0, metadata={
         'doc': 'at most one log line per rejection reason per this period [s]', 'min': 0.0})
     queue_depth: int = field(default=1000, metadata={
-        'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
+        'doc': 'queue depth of the raw input (sensor-data QoS, best effort) and of the '
+               'corrected output (reliable, keep last)', 'min': 1,
         'max': 100000})
     estimator: EstimatorConfig = field(default_factory=lambda: EstimatorConfig(
         block_chunks=LIVE_BLOCK_CHUNKS), metadata={
@@ -233,7 +234,8 @@ class CalibrationNode(Node):
         self._joint_ok = False
         self._last_joint_ns: int | None = None  # stamp of the last good joint state
         self._last_rx = None
-        self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
+        self._pub = self.create_publisher(Imu, 'imu/data_corrected',
+                                          reliable_qos(cfg.queue_depth))
         self._imu_sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
                                     sensor_qos(cfg.queue_depth), raw=True,
                                     idle=self._release_held)

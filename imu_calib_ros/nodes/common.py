@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import faulthandler
 import math
 import os
 import signal
@@ -474,6 +475,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         return 0
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, lambda signum, frame: None)
+        # `kill -USR1 <pid>`: every thread's Python stack on stderr (a node that does not
+        # stop can be asked where it is; the tests do so before they kill one)
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=args if args is not None else sys.argv)
     node: Node | None = None
     status = 0

@@ -56,7 +56,8 @@ class CompensatorConfig:
                ' order (transport jitter); a sample later than that is dropped as'
                ' out_of_order (reorder.late); 0 = no wait', 'min': 0.0, 'max': 1.0})
     queue_depth: int = field(default=500, metadata={
-        'doc': 'subscriber queue depth (sensor-data QoS, best effort)', 'min': 1,
+        'doc': 'queue depth of the raw input (sensor-data QoS, best effort) and of the '
+               'corrected output (reliable, keep last)', 'min': 1,
         'max': 100000})
     diagnostics_rate_hz: float = field(default=1.0, metadata={
         'doc': 'rate of /diagnostics [Hz]; 0 = off', 'min': 0.0, 'max': 100.0})
@@ -94,7 +95,8 @@ class CompensatorNode(Node):
         self.published = 0
         self._last_stamp_ns: int | None = None
         self._reorder: ReorderBuffer[tuple[str, Any, Any]] = ReorderBuffer(cfg.reorder_window_s)
-        self._pub = self.create_publisher(Imu, 'imu/data_corrected', reliable_qos(100))
+        self._pub = self.create_publisher(Imu, 'imu/data_corrected',
+                                          reliable_qos(cfg.queue_depth))
         self._sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
                                 sensor_qos(cfg.queue_depth), raw=True, idle=self._release_held)
         if cfg.diagnostics_rate_hz > 0:
