@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from imu_calib_ros.core.allan import AllanAccumulator, allan_curve
+from imu_calib_ros.core.calibration import CalibrationResult
 from imu_calib_ros.core.noise_characterisation import characterise
 from imu_calib_ros.core.noise_fit import fit_axis
 from imu_calib_ros.testing.noise_unit import simulate_axes
@@ -212,6 +213,17 @@ def test_cli_noise_calibration_bag_uses_stationary_windows(tmp_path, capsys) -> 
         assert n_g['ci95'][0] <= truth.gyro_noise_rad_s_rt_hz <= n_g['ci95'][1]
         assert n_a['ci95'][0] <= truth.accel_noise_m_s2_rt_hz <= n_a['ci95'][1]
     assert 'rate random walk K not shown' in capsys.readouterr().err
+    # the file is a noise model, no statement of the constant errors (no sigma: block): the
+    # calibration with it estimates what the plain command estimates, its priors from the
+    # data. Read as "every error is 0" it fixed every group and failed its self-check.
+    assert load_grade(out).sigma is None
+    plain, hinted = tmp_path / 'plain.yaml', tmp_path / 'hinted.yaml'
+    assert main(['replay', str(bag), '--fixture', 'three_axis', '--output', str(plain)]) == 0
+    assert main(['replay', str(bag), '--fixture', 'three_axis', '--imu', str(out),
+                 '--output', str(hinted)]) == 0
+    a, b = CalibrationResult.load(plain), CalibrationResult.load(hinted)
+    assert b.fixed == a.fixed
+    assert np.all(b.sigma.as_vector()[a.sigma.as_vector() > 0] > 0)
 
 
 def test_cli_noise_missing_topic(tmp_path, capsys) -> None:

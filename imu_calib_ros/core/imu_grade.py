@@ -2,7 +2,11 @@
 
 A grade (``config/imus/NAME.yaml``, SI units, engineering values in comments) serves two
 users: the simulator draws the true constant errors from its one-sigma magnitudes and adds
-its noise; the estimator takes the same magnitudes as its initial covariance.
+its noise; the estimator takes the same magnitudes as a hint for its initial covariance.
+A file without the ``sigma:`` block (what ``imu-calib noise`` writes: a measured noise model)
+states no constant errors: ``sigma`` is None, the estimator's priors come from the data alone
+(``estimator/priors.py``), and the simulator refuses to draw errors from it. A ``sigma:``
+value of 0 is a statement too: that error does not exist (an optical gyro's g-sensitivity).
 
 Noise terms (IEEE Std 952-1997 / 1293-1998 names):
 
@@ -63,7 +67,7 @@ class ImuGrade:
     accel_bias_random_walk_m_s3_rt_hz: float = field(default=0.0, metadata=_NONNEG)
     gyro_quantization_rad: float = field(default=0.0, metadata=_NONNEG)
     accel_quantization_m_s: float = field(default=0.0, metadata=_NONNEG)
-    sigma: ErrorSigmas = field(default_factory=ErrorSigmas)
+    sigma: ErrorSigmas | None = None  # None: a noise model only (see the module docstring)
 
     def noise_dict(self) -> dict[str, float]:
         """The noise terms as a plain dict (for truth/provenance files)."""
@@ -117,6 +121,10 @@ def draw_errors(grade: ImuGrade, rng: np.random.Generator) -> SensorErrors:
         numpy Generator; the draw order is fixed, so a seed reproduces the errors.
     """
     s = grade.sigma
+    if s is None:
+        raise ConfigError('the grade states no constant errors (no sigma: block), so no '
+                          'errors can be drawn from it; give one with a sigma: block',
+                          grade.name, 'imu_grade.sigma')
     off = ~np.eye(3, dtype=bool)
 
     def full(scale_sigma: float, mis_sigma: float) -> np.ndarray:

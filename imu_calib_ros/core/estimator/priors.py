@@ -58,8 +58,8 @@ def prior_sigmas(grade: Any, config: EstimatorConfig,
     """
     k = config.prior_sigma_scale
     hint: dict[str, FloatArray] = {}
-    if grade is not None:
-        s = grade.sigma
+    s = grade.sigma if grade is not None else None
+    if s is not None:  # a grade without sigma (a measured noise model) gives no hint
         vals = {
             'gyro_bias': s.gyro_bias_rad_s, 'gyro_scale': s.gyro_scale,
             'gyro_asymmetry': s.gyro_asymmetry, 'gyro_misalignment': s.gyro_misalignment_rad,
