@@ -88,14 +88,14 @@ def _check_type(tp: Any, value: Any, source: str | None, key: str) -> Any:
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
-        errors = []
-        for a in args:
-            if a is type(None):
-                continue
+        options = [a for a in args if a is not type(None)]
+        if len(options) == 1:  # X | None: X's own error (it names the inner key)
+            return _check_type(options[0], value, source, key)
+        for a in options:
             try:
                 return _check_type(a, value, source, key)
-            except ConfigError as exc:
-                errors.append(str(exc))
+            except ConfigError:
+                continue
         raise ConfigError(f'invalid value {value!r}', source, key)
     if origin is typing.Literal:
         if value not in args:
