@@ -148,3 +148,29 @@ def test_imu_cdr_round_trip_matches_rclpy() -> None:
         ns, fid, g, a = imu_fields_from_cdr(rclpy_ser.serialize_message(msg))
         assert (ns, fid, g, a) == (1_700_000_000_123_456_789, frame, (1.0, -2.0, 3.5),
                                    (4.0, 5.0, 9.81))
+
+
+class CrashingEstimator(FakeEstimator):
+    """Raises what no ``except`` of the worker named before (compensate's old RuntimeError)."""
+
+    def push_imu_batch(self, batch: Any) -> None:
+        super().push_imu_batch(batch)
+        raise RuntimeError('compensate did not converge')
+
+
+def test_an_unexpected_error_keeps_the_worker_answering() -> None:
+    """The worker reports any exception of the estimator and stays up: a dead worker never
+    drained its queue, so the node's save on shutdown waited 60 s for nothing and the node was
+    killed (CI, issue 16's trust: a node that does not stop)."""
+    fake = CrashingEstimator([({'status': 'OK'}, 0.0)])
+    runner = EstimatorRunner('thread', None, 'imu_link', factory=lambda: fake)
+    try:
+        assert runner.submit([imu(0), imu(1)])
+        assert runner.request('estimate', 10.0)
+        assert runner.alive
+        runner.poll()
+        assert runner.latest is not None
+        assert 'RuntimeError: compensate did not converge' in runner.latest.error
+        assert runner.submit([imu(2)]) and runner.request('estimate', 10.0)  # still serving
+    finally:
+        runner.stop()

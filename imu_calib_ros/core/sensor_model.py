@@ -99,6 +99,12 @@ PARAMETER_SLICES, PARAMETER_NAMES = _build_index()
 N_PARAMETERS = len(PARAMETER_NAMES)
 
 
+class ImplausibleErrors(ArithmeticError):
+    """:func:`compensate` did not converge: the sensor errors cannot describe a real unit
+    (e.g. a scale factor near -100 %, where the output no longer depends on the input). The
+    estimator treats it as a divergence of its working point."""
+
+
 @dataclass(frozen=True, eq=False)
 class SensorErrors:
     """Constant IMU errors (CONTRACT 3); all fields numpy arrays, read-only after creation.
@@ -505,8 +511,8 @@ def _compensate_one(c: _Inverse, wm_raw: tuple[float, float, float],
         if stalled >= 3 and change < 1e-12:
             return w, f
         last = change
-    raise RuntimeError(f'compensate did not converge in {max_iterations} iterations '
-                       f'(last relative change {change:.3g}): implausible sensor errors')
+    raise ImplausibleErrors(f'compensate did not converge in {max_iterations} iterations '
+                            f'(last relative change {change:.3g}): implausible sensor errors')
 
 
 def _compensate_rows(c: _Inverse, wm_raw: FloatArray, am_raw: FloatArray,
@@ -552,9 +558,9 @@ def _compensate_rows(c: _Inverse, wm_raw: FloatArray, am_raw: FloatArray,
     else:
         if active.any():
             worst = float(np.max(last[active]))
-            raise RuntimeError(f'compensate did not converge in {max_iterations} iterations '
-                               f'(last relative change {worst:.3g}): implausible sensor '
-                               'errors')
+            raise ImplausibleErrors(f'compensate did not converge in {max_iterations} '
+                                    f'iterations (last relative change {worst:.3g}): '
+                                    'implausible sensor errors')
     omega = np.stack(w, axis=1)
     force = np.stack(f, axis=1)
     omega[bad] = np.nan
@@ -600,7 +606,8 @@ def compensate(errors: SensorErrors, gyro_meas_rad_s: ArrayLike, accel_meas_m_s2
         ``omega x (omega x r_i)`` of the size effect is removed (right for stationary or
         constant-rate data; the caller's choice otherwise).
     max_iterations : int
-        ``RuntimeError`` if the iteration has not converged by then (absurd errors).
+        :class:`ImplausibleErrors` if the iteration has not converged by then (absurd
+        errors).
 
     Returns
     -------

@@ -577,6 +577,9 @@ class CalibrationNode(Node):
         """Everything received so far into the estimator, then write the last good estimate."""
         self._hand_over()
         if not self.runner.request('estimate', 60.0, flush=True):
+            if not self.runner.alive:
+                return False, ('the estimator process ended unexpectedly (its error is in '
+                               'this node\'s log); nothing saved')
             return False, 'the estimator did not answer within 60 s'
         self._hand_over()
         good, latest = self.runner.last_good, self.runner.latest_estimate

@@ -181,7 +181,8 @@ class _Serve:
                 self.est.push_imu_batch(ib)
         except ImuCalibError as exc:
             self.error = f'estimator refused input: {exc}'
-        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+        except Exception as exc:  # noqa: BLE001 - report, never kill the worker (a dead
+            # worker left every later request, the save on shutdown too, without an answer)
             self.error = f'estimator failed: {type(exc).__name__}: {exc}'
         self._note_running(imu)
 
@@ -230,7 +231,7 @@ class _Serve:
             self._estimate_t = now
             try:
                 result = self.est.estimate(frame_id=self.frame_id)
-            except (ImuCalibError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            except Exception as exc:  # noqa: BLE001 - report, never kill the worker
                 self.error = f'no estimate: {exc}'
         if force and result is not None and self.ledger is not None:
             try:  # the whole run's evidence (issue 17): for saves, not every snapshot
@@ -272,7 +273,7 @@ class _Serve:
             if msg[2]:  # flush: process every complete chunk now (save, shutdown)
                 try:
                     self.est.flush()
-                except (ImuCalibError, ArithmeticError, ValueError) as exc:
+                except Exception as exc:  # noqa: BLE001 - report, never kill the worker
                     self.error = f'estimator failed at flush: {exc}'
             self.snapshot(force=True)
             self.out_put(('reply', msg[1], True))
@@ -483,10 +484,15 @@ class EstimatorRunner:
         token = self._token
         msg = (kind, token, flush) if kind == 'estimate' else (kind, token)
         end = time.monotonic() + timeout_s
-        try:
-            self._in.put(msg, timeout=max(end - time.monotonic(), 0.01))
-        except queue.Full:
-            return False
+        while True:  # a worker that died never drains its queue: stop waiting at once
+            if not self.alive:
+                return False
+            try:
+                self._in.put(msg, timeout=min(max(end - time.monotonic(), 0.01), 0.5))
+                break
+            except queue.Full:
+                if time.monotonic() >= end:
+                    return False
         while token not in self._replies:
             left = end - time.monotonic()
             if left <= 0 or not self.alive:

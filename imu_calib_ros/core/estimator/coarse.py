@@ -63,6 +63,30 @@ class StaticWindow:
     n: int
 
 
+#: |scale factor| beyond which a coarse start is refused: units are specified within 3 %
+#: (MEMS); 20 % is no sensor error but axes, units or a fixture that do not match the data
+#: (a tilted fixture axis once fitted an accelerometer scale of -99.99 %, where the output no
+#: longer depends on the input and every later compensation diverged)
+MAX_PLAUSIBLE_SCALE = 0.2
+
+
+def implausible(start: 'CoarseStart') -> str | None:
+    """One line naming the first measured scale factor beyond :data:`MAX_PLAUSIBLE_SCALE`,
+    else None."""
+    for side, name, theta, sig, cols in (
+            ('gyro', 'scale', start.theta_gyro, start.sigma_gyro, em.gyro_cols('gyro_scale')),
+            ('accelerometer', 'scale', start.theta_accel, start.sigma_accel,
+             em.accel_cols('accel_scale'))):
+        for a, (v, s) in enumerate(zip(theta[cols], sig[cols])):
+            if np.isfinite(s) and abs(v) > MAX_PLAUSIBLE_SCALE:
+                article = 'an' if side[0] in 'aeiou' else 'a'
+                return (f'the stationary windows and rotations need {article} {side} {"xyz"[a]} '
+                        f'{name} factor of {100 * v:+.1f} % (units are specified within 3 %): '
+                        'the fixture file (axes, mounting), the joint names or signs, or the '
+                        "IMU's axes or units do not match the data")
+    return None
+
+
 @dataclass(frozen=True)
 class CoarseStart:
     """A start point for the filter measured from the data (SI, error_model theta order).

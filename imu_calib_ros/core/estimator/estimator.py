@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from .. import sensor_model as sm
+from ..errors import InputError
 from ..input_guard import GuardConfig, InputGuard
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
@@ -51,7 +52,7 @@ from . import error_model as em
 from .alignment import align, initial_covariance, still_run
 from .bootstrap import Bootstrap
 from .buffers import ImuBuffer, JointBuffer, point_to_mean
-from .coarse import CoarseStart
+from .coarse import CoarseStart, implausible
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
 from .history import EstimateHistory
@@ -438,7 +439,17 @@ class CalibrationEstimator:
             if done + b > n_chunks:
                 break
             k1 = k0 + b * n
-            self._run_block(t[k0:k1 + 1], w[k0:k1 + 1], f[k0:k1 + 1], b)
+            try:
+                self._run_block(t[k0:k1 + 1], w[k0:k1 + 1], f[k0:k1 + 1], b)
+            except sm.ImplausibleErrors as exc:
+                # the working point left what a sensor can be (a poor start, a wrong input):
+                # a divergence of the filter, not a crash of the run
+                if done:
+                    self._imu.keep_from(done * n)
+                    self._joints.trim(self._t_last_ns)
+                self._declare_divergence(f'implausible sensor errors at the working point '
+                                         f'({exc})')
+                return
             done += b
             if self._cascade:
                 self._realign()
@@ -610,6 +621,9 @@ class CalibrationEstimator:
         ready, st = self._boot.measure(self.fixture, final, t_cut_ns)
         if not ready:
             return False
+        why = implausible(st) if st is not None else None
+        if why is not None:  # refused before anything changes: every later push refuses too
+            raise InputError(why)
         held, self._boot = self._boot.items, None
         self.start = st
         self._configure()
