@@ -213,14 +213,16 @@ def test_a_wrong_fixture_axis_is_refused_and_forced_files_are_marked(
     assert not v['checks']['windows.chi2']['passed']
 
 
-@pytest.mark.parametrize('wrong, word', [('accel_x_sign', 'raw-unit sigmas'),
+@pytest.mark.parametrize('wrong, word', [('accel_x_sign', 'accelerometer x scale factor of'),
                                          ('grade_hint', 'gated')])
 def test_a_wrong_sign_or_grade_is_refused(nav_case: tuple[Path, Any], tmp_path: Path,
                                           capsys: pytest.CaptureFixture[str], wrong: str,
                                           word: str) -> None:
-    """An accelerometer x axis of the wrong sign (the filter fits a scale factor of -2, a
-    calibration 380,000 sigma from the unit's own) and a MEMS grade hint for a navigation-grade
-    unit (its noise floors make the filter gate its updates and re-align)."""
+    """An accelerometer x axis of the wrong sign (a scale factor of -2: the coarse start
+    refuses it in one line before the filter runs; before that refusal the filter fitted it, a
+    calibration 380,000 sigma from the unit's own, and the self-check refused it) and a MEMS
+    grade hint for a navigation-grade unit (its noise floors make the filter gate its updates
+    and re-align)."""
     from imu_calib_ros.msg_adapters.bag import read_bag, write_bag
     bag, truth = nav_case
     extra: tuple[str, ...] = ()
@@ -233,7 +235,12 @@ def test_a_wrong_sign_or_grade_is_refused(nav_case: tuple[Path, Any], tmp_path: 
     else:
         extra = ('--imu', 'mems_mti1')
     out = tmp_path / 'c.yaml'
-    refused(*replay(capsys, bag, str(truth.fixture_path), out, *extra), out, word)
+    rc, err = replay(capsys, bag, str(truth.fixture_path), out, *extra)
+    if wrong == 'accel_x_sign':  # CONTRACT 5: bad input, exit 2, one line
+        assert rc == 2 and len(err.splitlines()) == 1 and word in err, (rc, err)
+        assert 'do not match the data' in err and not out.exists()
+    else:
+        refused(rc, err, out, word)
 
 
 def test_ten_percent_burst_drops_give_an_honest_calibration_or_a_refusal(
