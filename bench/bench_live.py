@@ -191,7 +191,7 @@ def run_bag(rate: float) -> int:
     from imu_calib_ros.core.imu_grade import load_grade
     from imu_calib_ros.core.plans import build_profile, load_plan
     from imu_calib_ros.core.simulator import SimConfig, simulate
-    from imu_calib_ros.msg_adapters.bag import iter_bag, write_bag
+    from msg_adapters.bag import iter_bag, write_bag
     tmp = Path(tempfile.mkdtemp())
     fx = load_fixture('three_axis')
     sim = simulate(fx, build_profile(load_plan('demo_short'), fx), load_grade('mems_mti1'),

@@ -177,7 +177,7 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
     the filter diverge; replay must say so and write nothing (issue 6). Issue 11: the filter
     now re-aligns instead of aborting; it may then finish, but only with the bias it ends at
     inside its sigma and the re-alignments in the file (never a silent wrong value)."""
-    from imu_calib_ros.msg_adapters.bag import read_bag, write_bag
+    from msg_adapters.bag import read_bag, write_bag
     imu, joints = read_bag(bags / 'moving' / 'bag.mcap')
     t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
     imu.gyro_rad_s[t >= 100.0, 0] += 2e-3

@@ -27,7 +27,7 @@ from rclpy.node import Node  # noqa: E402
 from imu_calib_ros.core.calibration import CalibrationResult  # noqa: E402
 from imu_calib_ros.core.sensor_model import compensate, mean_rate_derivative  # noqa: E402
 from imu_calib_ros.core.types import ImuSample  # noqa: E402
-from imu_calib_ros.msg_adapters.convert import imu_msg_from_sample  # noqa: E402
+from msg_adapters.convert import imu_msg_from_sample  # noqa: E402
 from imu_calib_ros.nodes.common import latched_qos, reliable_qos  # noqa
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -59,7 +59,7 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
 
     from ..core.allan import AllanAccumulator
     from ..core.types import GAP_PERIODS
-    from ..msg_adapters.bag import iter_bag_batches
+    from msg_adapters.bag import iter_bag_batches
     acc = None
     last = None
     period_ns = 0.0
@@ -97,7 +97,7 @@ def accumulate_windows(bag: str, imu_topic: str, joint_topic: str, min_static_s:
 
     from ..core.allan import AllanAccumulator
     from ..core.estimator.coarse import static_windows
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     imu, joints = read_bag(bag, imu_topic, joint_topic)
     if len(imu) < 2 or len(joints) < 2:
         raise InputError(f'{bag}: too few IMU or joint samples for stationary windows')
@@ -133,7 +133,7 @@ def _write_yaml(path: Path, data: Any, comments: list[str]) -> None:
 def run(args: Any) -> int:
     """Run the sub-command."""
     from ..core.noise_characterisation import characterise
-    from ..msg_adapters.bag import list_topics
+    from msg_adapters.bag import list_topics
     outs = [Path(p) for p in (args.output, args.report, args.kalibr) if p]
     for out, ex in zip(outs, ('noise.yaml', 'noise.html', 'imu.yaml')):
         check_output_file(out, ex)

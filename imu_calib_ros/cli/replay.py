@@ -20,8 +20,9 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from msg_adapters import DEFAULT_REORDER_WINDOW_S
+
 from ..core.errors import InputError, SelfCheckError
-from ..msg_adapters import DEFAULT_REORDER_WINDOW_S
 from . import add_topic_arguments, add_urdf_arguments, check_output_file, urdf_options
 
 if TYPE_CHECKING:
@@ -113,7 +114,7 @@ def _joints_the_fixture_lacks(args: Any, fixture: Any) -> str:
     wrong table shows only as rotations the fit cannot explain), else ''."""
     import numpy as np
 
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     try:
         _, joints = read_bag(args.bag, args.imu_topic, args.joint_topic, args.reorder_window)
     except Exception:  # noqa: BLE001 - a hint only; the original error stands
@@ -137,7 +138,7 @@ def run(args: Any) -> int:
     """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
     from ..core.fixture import load_fixture
     from ..core.imu_grade import load_grade
-    from ..msg_adapters.bag import iter_bag, read_bag
+    from msg_adapters.bag import iter_bag, read_bag
     out = Path(args.output)
     if args.iterations < 1:
         raise InputError(f'--iterations must be >= 1, got {args.iterations}')

@@ -71,7 +71,7 @@ def _nav_velocity(args: argparse.Namespace, calib, data=None):  # noqa: ANN001, 
     from ..core.methods.windows import joints_at, stationary_windows
     from ..core.sensor_model import compensate
     from ..core.strapdown import Strapdown
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     if args.fixture is None:
         raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')
     fx = load_fixture(args.fixture)
@@ -115,7 +115,7 @@ def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN20
     from ..core.fixture import load_fixture
     from ..core.methods.windows import joint_positions, stationary_windows
     from ..core.sensor_model import SensorErrors
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     from ..report.bag_facts import BagFacts, content_hash, pooled_allan
     if args.fixture is None:
         raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')

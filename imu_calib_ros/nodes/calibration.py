@@ -52,6 +52,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
+from msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
+                                  time_msg_from_ns)
+
 from ..core.diagnostics import StampGapCounter, frame_mismatch, health_values, input_account
 from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
@@ -59,8 +62,6 @@ from ..core.estimator.selfcheck import saved_extra
 from ..core.input_guard import rejection_counts
 from ..core.reorder import ReorderBuffer
 from ..core.types import JointSample
-from ..msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
-                                    time_msg_from_ns)
 from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
                      diag9, finite, finite3, latched_qos, quiet_publisher, reliable_qos,
                      run_node, sensor_qos)

@@ -33,10 +33,11 @@ from rclpy.parameter import Parameter
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
+from msg_adapters.convert import stamp_ns_from_time, time_msg_from_ns  # noqa: F401
+
 from ..core.config import from_mapping, load_yaml
 from ..core.errors import ConfigError, ImuCalibError
 from ..core.types import GAP_PERIODS, FloatArray
-from ..msg_adapters.convert import stamp_ns_from_time, time_msg_from_ns  # noqa: F401
 
 T = TypeVar('T')
 

@@ -21,10 +21,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
+from msg_adapters.convert import imu_cdr, imu_fields_from_cdr
+
 from ..core.calibration import CalibrationResult
 from ..core.errors import ConfigError, ImuCalibError
 from ..core.reorder import ReorderBuffer
-from ..msg_adapters.convert import imu_cdr, imu_fields_from_cdr
 from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
                      diag9, finite3, quiet_publisher, reliable_qos, run_node, sensor_qos)
 

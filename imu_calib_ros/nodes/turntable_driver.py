@@ -38,9 +38,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
+
 from ..core.errors import ImuCalibError, PlanError
 from ..core.types import FloatArray
-from ..msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      sensor_qos)
 from .fixture_source import load_node_fixture, urdf_field

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..core.errors import BagError
+from imu_calib_ros.core.errors import BagError
 from . import cdr
 
 IntArray = NDArray[np.int64]

@@ -42,9 +42,9 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ..core.errors import BagError, InputError
-from ..core.reorder import BatchReorder, ReorderStats
-from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
+from imu_calib_ros.core.errors import BagError, InputError
+from imu_calib_ros.core.reorder import BatchReorder, ReorderStats
+from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import DEFAULT_REORDER_WINDOW_S
 from . import cdr
 from .bag_raw import RawBlock, oneline, raw_windows
