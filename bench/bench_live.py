@@ -132,7 +132,7 @@ def run(node_cmd: list[str], imu_hz: float, seconds: float) -> dict[str, float]:
         for s in m.status:
             diag.update({kv.key: kv.value for kv in s.values})
 
-    from imu_calib_ros.nodes.common import DrainingSubscription
+    from imu_calib_ros.nodes.input_thread import DrainingSubscription
     DrainingSubscription(node, Imu, 'imu/data_corrected', on_imu, sensor_qos(5000))
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
     cpu0 = w0 = None

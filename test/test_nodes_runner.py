@@ -15,7 +15,7 @@ import pytest
 from imu_calib_ros.core.calibration import CalibrationResult
 from imu_calib_ros.core.sensor_model import SensorErrors
 from imu_calib_ros.core.types import JointSample
-from imu_calib_ros.nodes.estimator_runner import EstimatorRunner, is_diverged
+from imu_calib_ros.core.estimator.runner import EstimatorRunner, is_diverged
 
 
 class FakeEstimator:

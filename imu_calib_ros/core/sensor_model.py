@@ -332,7 +332,8 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     ``causal=True``: backward difference (mean rate k minus mean rate k-1, over
     ``(t_k - t_{k-1})`` from the int64 stamps), which refers to the time half a sample
     earlier, and zero at the first sample of each stretch: only past samples, what a live
-    node can compute (``nodes.common.StreamCompensation`` does this per sample, same bits).
+    node can compute (``core.stream_compensation.StreamCompensation`` does this per sample,
+    same bits).
     Never across a gap (CONTRACT 1, :func:`~.types.sample_intervals_ns`, gaps judged
     against ``nominal_period_s`` or, if None, the median interval): each stretch between
     gaps is differentiated on its own (central: one-sided at its ends, zero for a lone
@@ -362,8 +363,8 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     if np.any(dt <= 0):
         raise ValueError('stamps must be strictly increasing')
     if causal:
-        # the live node's comparison, in seconds (nodes.common.StreamCompensation): the
-        # same decision at an interval of exactly GAP_PERIODS periods
+        # the live node's comparison, in seconds (core.stream_compensation.StreamCompensation):
+        # the same decision at an interval of exactly GAP_PERIODS periods
         d = np.zeros_like(w)
         dt_s = np.diff(stamps.astype(np.int64)) * 1e-9
         period_s = (float(np.median(dt_s)) if nominal_period_s is None
