@@ -58,7 +58,7 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
     import numpy as np
 
     from ..core.allan import AllanAccumulator
-    from ..core.types import GAP_PERIODS
+    from ..core.types import GAP_PERIODS, ImuBatch
     from msg_adapters.bag import iter_bag_batches
     acc = None
     last = None
@@ -66,6 +66,7 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
     for b in iter_bag_batches(bag, imu_topic, None):
         if not len(b):
             continue
+        assert isinstance(b, ImuBatch)  # no joint topic asked
         t = b.stamps_ns.astype(np.int64)
         y = np.hstack([b.gyro_rad_s, b.accel_m_s2])
         if acc is None:
@@ -79,7 +80,7 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
         for c in cuts:
             acc.add(y[start:c])
             acc.new_segment()
-            start = c
+            start = int(c)
         acc.add(y[start:])
         last = int(t[-1])
         if progress is not None:

@@ -37,7 +37,8 @@ def register(subparsers: Any) -> None:
                               description=__doc__.split('\n\n')[0] if __doc__ else None)
     p.add_argument('bag', metavar='BAG', help='bag directory or .mcap file')
     p.add_argument('--fixture', required=True, metavar='F',
-                   help='fixture name, YAML path (CONTRACT 2) or .urdf (with --base-link, --imu-link)')
+                   help='fixture name, YAML path (CONTRACT 2) or .urdf (with --base-link, '
+                        '--imu-link)')
     add_urdf_arguments(p)
     p.add_argument('--output', '-o', required=True, metavar='CALIB.yaml',
                    help='calibration file to write (CONTRACT 4)')

@@ -236,7 +236,7 @@ class CalibrationNode(Node):
         self._first_imu_ns: int | None = None
         self._joint_ok = False
         self._last_joint_ns: int | None = None  # stamp of the last good joint state
-        self._last_rx = None
+        self._last_rx: Any = None  # rclpy Time of the last raw IMU message
         self._pub = self.create_publisher(Imu, 'imu/data_corrected',
                                           reliable_qos(cfg.queue_depth))
         self._imu_sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,

@@ -225,7 +225,7 @@ def _declare_mapping(node: Node, cls: type[Any], prefix: str, defaults: Any = No
         tp = hints[f.name]
         base, optional = _strip_optional(tp)
         default = _field_default(f, defaults)
-        if dataclasses.is_dataclass(base):
+        if isinstance(base, type) and dataclasses.is_dataclass(base):
             out[f.name] = _declare_mapping(node, base, f'{name}.', default, overrides)
             continue
         desc = _descriptor(f, tp, name)
@@ -314,7 +314,7 @@ def parameter_help(cls: type[Any], prefix: str = '', defaults: Any = None) -> li
         tp = hints[f.name]
         base, _ = _strip_optional(tp)
         default = _field_default(f, defaults)
-        if dataclasses.is_dataclass(base):
+        if isinstance(base, type) and dataclasses.is_dataclass(base):
             lines += parameter_help(base, f'{name}.', default)
             continue
         desc = _descriptor(f, tp, name)

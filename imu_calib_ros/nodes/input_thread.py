@@ -125,11 +125,12 @@ class InputThread:
     def _run(self) -> None:
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
         sub, handle, idle = self.sub, self._handle, self._idle
+        context: Any = self._context  # its .handle: Optional in rclpy's annotations
         longest = 200_000_000  # 0.2 s: also notices a shut-down context
         timeout = longest
         try:
-            with self._context.handle, sub.handle, self._gc.handle:
-                ws = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, self._context.handle)
+            with context.handle, sub.handle, self._gc.handle:
+                ws = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, context.handle)
                 take = sub.handle.take_message
                 while not self._stop and self._context.ok():
                     ws.clear_entities()

@@ -185,6 +185,7 @@ class TurntableDriverNode(Node):
                 return
             self._start()
             return
+        assert self._t0_ns is not None  # set with the profile
         now_ns = self.get_clock().now().nanoseconds
         end_ns = self._t0_ns + int((cfg.lead_in_s + self._profile.duration_s + cfg.settle_s)
                                    * 1e9)

@@ -436,9 +436,9 @@ class TurntableSimNode(Node):
                     self.imu_published += 1
                     i += 1
                 else:
-                    s = joints.sample(j)
-                    self._joint_pub.publish(joint_state_msg_from_sample(s, JointState))
-                    self._last_joint_ns = s.stamp_ns
+                    sj = joints.sample(j)
+                    self._joint_pub.publish(joint_state_msg_from_sample(sj, JointState))
+                    self._last_joint_ns = sj.stamp_ns
                     self.joint_published += 1
                     j += 1
 

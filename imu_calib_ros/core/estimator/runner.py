@@ -332,15 +332,17 @@ class _ChildProcess:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
         self.inq: queue.Queue[Any] = queue.Queue(max_batches)
         self.outq: queue.Queue[Any] = queue.Queue()
-        pickle.dump(('init', spec, frame_id), self.proc.stdin)
-        self.proc.stdin.flush()
+        stdin, stdout = self.proc.stdin, self.proc.stdout
+        assert stdin is not None and stdout is not None  # PIPE
+        pickle.dump(('init', spec, frame_id), stdin)
+        stdin.flush()
 
         def write() -> None:
             try:
                 while True:
                     msg = self.inq.get()
-                    pickle.dump(msg, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-                    self.proc.stdin.flush()
+                    pickle.dump(msg, stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                    stdin.flush()
                     if msg[0] == 'stop':
                         return
             except (BrokenPipeError, OSError, ValueError):
@@ -349,7 +351,7 @@ class _ChildProcess:
         def read() -> None:
             try:
                 while True:
-                    msg = pickle.load(self.proc.stdout)
+                    msg = pickle.load(stdout)
                     if msg[0] != 'ready':
                         self.outq.put(msg)
             except (EOFError, OSError, ValueError, pickle.UnpicklingError):
@@ -408,7 +410,8 @@ class EstimatorRunner:
         else:
             self._in = queue.Queue(max_batches)
             self._out = queue.Queue()
-            fac = factory if factory is not None else (lambda: make_estimator(spec))
+            fac = factory if factory is not None else (
+                lambda: make_estimator(spec))  # type: ignore[arg-type] # spec given
             serve = _Serve(fac, frame_id, self._out.put)
 
             def loop() -> None:
