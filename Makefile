@@ -22,6 +22,11 @@ $(STAMP): requirements.txt constraints.txt setup.py
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 test
 
+# ruff (config: ruff.toml) and mypy (config: setup.cfg [mypy]); no formatter.
+lint: $(STAMP)
+	$(PY) -m ruff check imu_calib_ros msg_adapters bench test
+	$(PY) -m mypy imu_calib_ros msg_adapters
+
 demo: $(STAMP)
 	$(PY) -m imu_calib_ros.demo
 
@@ -29,4 +34,4 @@ bench: $(STAMP)
 	for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info out
+	rm -rf $(VENV) build *.egg-info out .mypy_cache .ruff_cache

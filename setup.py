@@ -14,7 +14,10 @@ VERSION = re.search(r'<version>\s*([^<\s]+)\s*</version>',
 setup(
     name=PACKAGE,
     version=VERSION,
-    packages=find_packages(exclude=['test', 'test.*', 'bench']),
+    # Two top-level packages: imu_calib_ros (core, nodes, cli) and msg_adapters (the only code
+    # that knows ROS message classes; it imports imu_calib_ros.core, never the reverse).
+    packages=find_packages(include=['imu_calib_ros', 'imu_calib_ros.*',
+                                    'msg_adapters', 'msg_adapters.*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),

@@ -1,13 +1,15 @@
 """Accuracy and honesty of the calibration EKF (issue 3, item 6): simulate, replay, compare.
 
-    python bench/bench_accuracy.py [--cases nav,mems,mems-stable,random,mc] [--seed 1] [--iterations 1]
-                                   [--nav-rate 200] [--mems-rate 100] [--mc-seeds 20] ...
+    python bench/bench_accuracy.py [--cases nav,mems,mems-stable,random,mc] [--seed 1]
+                                   [--iterations 1] [--nav-rate 200] [--mems-rate 100]
+                                   [--mc-seeds 20] ...
 
 Cases (each prints a per-parameter table and a one-line ``SUMMARY`` per case):
 
 ``nav``
     navigation grade (config/imus/nav_grade.yaml), ``--nav-rate`` Hz, plan ``--nav-plan``
-    (default srt_kozlov_bias: SRT, Kozlov, 6 x 120 s static) on config/fixtures/three_axis.yaml, config/estimator.yaml,
+    (default srt_kozlov_bias: SRT, Kozlov, 6 x 120 s static) on
+    config/fixtures/three_axis.yaml, config/estimator.yaml,
     against the issue-3 targets: gyro scale <= 1 ppm, gyro misalignment <= 1 urad, accel
     misalignment <= 2 urad, accel bias <= 2 ug, accel scale <= 5 ppm, asymmetries <= 5 ppm,
     size effect <= 0.1 mm (error AND sigma), gyro bias sigma <= 0.005 deg/h.
@@ -243,7 +245,8 @@ def gm_bias_limits(grade: Any, duration_s: float) -> tuple[float, float]:
 
 def case_targets(name: str, grade: str, plan: str, rate: float, est_cfg: str,
                  targets: dict[str, tuple[float, str]], a: argparse.Namespace) -> None:
-    print(f'\n=== {name}: {getattr(grade, "name", grade)}, {plan}, {rate:g} Hz, {est_cfg}, seed {a.seed}, '
+    print(f'\n=== {name}: {getattr(grade, "name", grade)}, {plan}, {rate:g} Hz, {est_cfg}, '
+          f'seed {a.seed}, '
           f'{a.iterations} passes ===')
     r = run_case(grade, plan, rate, est_cfg, a.seed, a.iterations)
     dur = len(r.sim.imu) / rate
@@ -352,7 +355,7 @@ def case_mc(a: argparse.Namespace) -> None:
     M, n = z.shape
     lo, hi = chi2.ppf([0.025, 0.975], M * n) / M
     mean = float(np.mean(nees))
-    print(f'per state over seeds: mean z, rms z (1 for an honest filter):')
+    print('per state over seeds: mean z, rms z (1 for an honest filter):')
     rms = np.sqrt(np.mean(z ** 2, axis=0))
     for i in np.argsort(-rms):
         print(f'  {labels[i]:24s} mean {z[:, i].mean():6.2f}  rms {rms[i]:5.2f}')

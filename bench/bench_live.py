@@ -132,7 +132,7 @@ def run(node_cmd: list[str], imu_hz: float, seconds: float) -> dict[str, float]:
         for s in m.status:
             diag.update({kv.key: kv.value for kv in s.values})
 
-    from imu_calib_ros.nodes.common import DrainingSubscription
+    from imu_calib_ros.nodes.input_thread import DrainingSubscription
     DrainingSubscription(node, Imu, 'imu/data_corrected', on_imu, sensor_qos(5000))
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
     cpu0 = w0 = None
@@ -191,7 +191,7 @@ def run_bag(rate: float) -> int:
     from imu_calib_ros.core.imu_grade import load_grade
     from imu_calib_ros.core.plans import build_profile, load_plan
     from imu_calib_ros.core.simulator import SimConfig, simulate
-    from imu_calib_ros.msg_adapters.bag import iter_bag, write_bag
+    from msg_adapters.bag import iter_bag, write_bag
     tmp = Path(tempfile.mkdtemp())
     fx = load_fixture('three_axis')
     sim = simulate(fx, build_profile(load_plan('demo_short'), fx), load_grade('mems_mti1'),

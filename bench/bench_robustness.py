@@ -297,7 +297,8 @@ def _source_hash() -> str:
     h = hashlib.sha256()
     for mod in (world_sim, world_units):
         h.update(Path(str(mod.__file__)).read_bytes())
-    h.update((REPO / 'imu_calib_ros' / 'core' / 'plans.py').read_bytes())
+    for src in sorted((REPO / 'imu_calib_ros' / 'core' / 'plans').glob('*.py')):
+        h.update(src.read_bytes())
     for plan in ('savage_srt', 'srt_then_kozlov'):
         h.update((REPO / 'config' / 'plans' / f'{plan}.yaml').read_bytes())
     for fx in ('three_axis', 'savage_2axis'):

@@ -45,7 +45,7 @@ from imu_calib_ros.core.estimator import load_estimator_config
 from imu_calib_ros.core.estimator.replay import replay_run
 from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.core.imu_grade import load_grade
-from imu_calib_ros.msg_adapters.bag import iter_bag, read_bag, write_bag
+from msg_adapters.bag import iter_bag, read_bag, write_bag
 from imu_calib_ros.testing.world_cases import compare_calibration, make_case
 
 WORLD = ('nav', 'tactical', 'industrial_mems', 'consumer_mems')

@@ -124,8 +124,8 @@ def write_hour_bag(sim: Any, reps: int, path: Path) -> None:
     """Write ``reps`` stamp-shifted copies of the simulated data to one mcap bag, repetition
     by repetition (bounded memory; the same stream ``replay`` pushes in the default mode)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from imu_calib_ros.msg_adapters import bag as bagmod, cdr
-    from imu_calib_ros.msg_adapters.convert import IMU_MSGTYPE, JOINT_STATE_MSGTYPE
+    from msg_adapters import bag as bagmod, cdr
+    from msg_adapters.convert import IMU_MSGTYPE, JOINT_STATE_MSGTYPE
     store = bagmod._typestore()  # noqa: SLF001 - the typestore the bag module uses
     imu, jb = sim.imu, sim.joints
     n = len(imu)
@@ -168,7 +168,7 @@ def bench_bag(a: Any, fx: Any, grade: Any, make_sim: Any) -> None:
     ``read``: the bag reader alone (what replay reads: ``iter_bag(bag).batches()``)."""
     from imu_calib_ros.cli import main as cli_main
     from imu_calib_ros.core.estimator.replay import replay as replay_bag
-    from imu_calib_ros.msg_adapters.bag import iter_bag, list_topics
+    from msg_adapters.bag import iter_bag, list_topics
     path = Path(tempfile.gettempdir()) / f'imu_calib_bench_{a.minutes:g}min_{a.rate:g}hz.mcap'
     if not path.exists():
         t = time.perf_counter()
@@ -258,7 +258,7 @@ def bench_bag(a: Any, fx: Any, grade: Any, make_sim: Any) -> None:
 def reader_bags(minutes: float) -> tuple[Path, Path]:
     """The ordered and the receipt-jitter 2 kHz bags of ``--reader`` (cached in /tmp)."""
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-    from imu_calib_ros.msg_adapters import bag as bagmod
+    from msg_adapters import bag as bagmod
     d = Path(tempfile.gettempdir()) / f'imu_calib_bench_reader_{minutes:g}min'
     ordered, jittered = d / 'ordered.mcap', d / 'rosbag2_like.mcap'
     if ordered.exists() and jittered.exists():
@@ -291,7 +291,7 @@ def reader_bags(minutes: float) -> tuple[Path, Path]:
 
 def bench_reader(minutes: float) -> None:
     """``--reader``: CPU time of the bag read paths on a 2 kHz bag, ordered and jittered."""
-    from imu_calib_ros.msg_adapters.bag import iter_bag, read_bag
+    from msg_adapters.bag import iter_bag, read_bag
     for path in reader_bags(minutes):
         for name, run in (('read_bag', lambda: len(read_bag(path)[0])),
                           ('iter_bag().batches()',

@@ -177,7 +177,7 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
     the filter diverge; replay must say so and write nothing (issue 6). Issue 11: the filter
     now re-aligns instead of aborting; it may then finish, but only with the bias it ends at
     inside its sigma and the re-alignments in the file (never a silent wrong value)."""
-    from imu_calib_ros.msg_adapters.bag import read_bag, write_bag
+    from msg_adapters.bag import read_bag, write_bag
     imu, joints = read_bag(bags / 'moving' / 'bag.mcap')
     t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
     imu.gyro_rad_s[t >= 100.0, 0] += 2e-3
@@ -202,8 +202,9 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
 
 def test_wrong_fixture_is_one_line(bags: Path, tmp_path: Path, capsys) -> None:
     """A bag from the three-axis table replayed with the two-axis fixture: the coarse start
-    finds the gyros do not follow the fixture's rotations; the user gets the one error line (the core's own log lines about the
-    rollback and the rejected samples, two more lines before, are held back on failure)."""
+    finds the gyros do not follow the fixture's rotations; the user gets the one error line
+    (the core's own log lines about the rollback and the rejected samples, two more lines
+    before, are held back on failure)."""
     import subprocess
     import sys
     out = tmp_path / 'c.yaml'

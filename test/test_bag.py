@@ -18,10 +18,10 @@ from rosbags.typesys import Stores, get_typestore
 
 from imu_calib_ros.core.errors import BagError
 from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
-from imu_calib_ros.msg_adapters import bag, cdr
-from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
-                                                ImuCovariances, imu_msg_from_sample,
-                                                joint_state_msg_from_sample)
+from msg_adapters import bag, cdr
+from msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
+                                  ImuCovariances, imu_msg_from_sample,
+                                  joint_state_msg_from_sample)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 T0_NS = 1_700_000_000 * 10 ** 9 - 7_500_000  # crosses a second boundary within the data

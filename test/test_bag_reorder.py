@@ -16,10 +16,10 @@ import pytest
 
 from imu_calib_ros.core.reorder import ReorderStats
 from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
-from imu_calib_ros.msg_adapters import bag
-from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
-                                                imu_msg_from_sample,
-                                                joint_state_msg_from_sample)
+from msg_adapters import bag
+from msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
+                                  imu_msg_from_sample,
+                                  joint_state_msg_from_sample)
 
 T0 = 1_700_000_000_000_000_000
 IMU, JOINTS = bag.DEFAULT_IMU_TOPIC, bag.DEFAULT_JOINT_TOPIC

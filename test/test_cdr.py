@@ -21,10 +21,10 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
-from imu_calib_ros.msg_adapters import bag, bag_raw, cdr
-from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
-                                                ImuCovariances, imu_msg_from_sample,
-                                                joint_state_msg_from_sample)
+from msg_adapters import bag, bag_raw, cdr
+from msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE,
+                                  ImuCovariances, imu_msg_from_sample,
+                                  joint_state_msg_from_sample)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 ROOT = Path(__file__).resolve().parents[1]
@@ -306,7 +306,7 @@ def test_help_imports_no_numpy_heavy_module() -> None:
             '            pass\n'
             '    assert "usage" in out.getvalue(), argv\n'
             'heavy = ("numpy", "scipy", "yaml", "rosbags", "rclpy", "mcap", "yourdfpy",\n'
-            '         "imu_calib_ros.core.estimator", "imu_calib_ros.msg_adapters.bag")\n'
+            '         "imu_calib_ros.core.estimator", "msg_adapters.bag")\n'
             'print(sorted(m for m in sys.modules if m.startswith(heavy)))\n')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          timeout=60, cwd=ROOT)

@@ -27,7 +27,7 @@ def test_modulate_writes_the_core_demodulation(bag: Path, mode: str) -> None:
     in bench/bench_modulation.py), with the input's joint states and stamps."""
     from imu_calib_ros.core.fixture import load_fixture
     from imu_calib_ros.core.methods.modulation import demodulate
-    from imu_calib_ros.msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     out = bag / f'body_{mode}'
     assert main(['modulate', str(bag / 'in'), '--fixture', 'three_axis', '--output',
                  str(out), '--mode', mode]) == 0

@@ -22,7 +22,7 @@ from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.core.imu_grade import load_grade
 from imu_calib_ros.core.plans import build_profile, load_plan
 from imu_calib_ros.core.types import ImuBatch, JointBatch
-from imu_calib_ros.msg_adapters import bag
+from msg_adapters import bag
 
 EARTH_RATE_RAD_S = 7.2921151467e-5
 PLANS = sorted(p.stem for p in (share_dir() / 'config' / 'plans').glob('*.yaml'))
@@ -265,7 +265,7 @@ def test_failure_while_writing_leaves_no_partial_output(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A bag write that dies halfway (disk full) leaves neither bag nor truth file."""
-    from imu_calib_ros.msg_adapters import bag as bag_mod
+    from msg_adapters import bag as bag_mod
     real = bag_mod.write_bag
 
     def dying_write(*a, **kw):  # type: ignore[no-untyped-def]

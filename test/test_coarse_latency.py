@@ -17,7 +17,7 @@ import pytest
 
 from imu_calib_ros.core.estimator.coarse import coarse_start
 from imu_calib_ros.core.fixture import load_fixture
-from imu_calib_ros.msg_adapters.bag import read_bag
+from msg_adapters.bag import read_bag
 from imu_calib_ros.testing.world_cases import make_case
 
 TOL_S = 3e-4

@@ -12,7 +12,6 @@ import pytest
 from scipy.stats import chi2
 
 from imu_calib_ros.core.estimator import CalibrationEstimator, EstimatorConfig
-from imu_calib_ros.core.estimator import error_model as em
 from imu_calib_ros.core.estimator.estimator import prior_sigmas
 from imu_calib_ros.core.estimator.truth import calibration_truth as truth_vector
 from imu_calib_ros.core.fixture import load_fixture

@@ -10,7 +10,7 @@ from imu_calib_ros.core.config import share_dir
 from imu_calib_ros.core.earth import EARTH_RATE_RAD_S, Site
 from imu_calib_ros.core.errors import ConfigError
 from imu_calib_ros.core.fixture import Fixture, Joint, load_fixture
-from imu_calib_ros.core.rotation import rot_axis_angle, rpy_to_matrix, skew, unskew
+from imu_calib_ros.core.rotation import rot_axis_angle, rpy_to_matrix, unskew
 
 FIXTURES = share_dir() / 'config' / 'fixtures'
 E, N, U = np.eye(3)

@@ -15,7 +15,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from imu_calib_ros.cli import main
 from imu_calib_ros.core.calibration import CalibrationResult

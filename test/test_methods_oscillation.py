@@ -63,10 +63,11 @@ def test_recovers_size_effect_within_noise_limited_sigma(setup):
     """With noise: every coordinate within 4 sigma, sigma from the noise (module doc).
 
     Expected sigma for nav grade (ARW 5.8e-7 rad/s/rtHz, VRW 4.9e-5 m/s^2/rtHz), D = 60 s,
-    tau ~ 0.5 s (the window's trimmed margin), T_w ~ 8.6 s (10 s dwell trimmed): sigma_a ~ 3.2e-5 m/s^2 per cycle; times 0.948 s^2 sqrt(2)
-    (two-period difference): ~42 um. The sigma must match that to 15 % (the measured
-    densities scatter), and the error / sigma must be noise-like (over 12 seeds its RMS was
-    0.95 in development; here one seed, 6 values, 4 sigma)."""
+    tau ~ 0.5 s (the window's trimmed margin), T_w ~ 8.6 s (10 s dwell trimmed): sigma_a ~
+    3.2e-5 m/s^2 per cycle; times 0.948 s^2 sqrt(2) (two-period difference): ~42 um. The
+    sigma must match that to 15 % (the measured densities scatter), and the error / sigma
+    must be noise-like (over 12 seeds its RMS was 0.95 in development; here one seed, 6
+    values, 4 sigma)."""
     fx, grade, _ = setup
     sim, (errs, sig, fixed, extra) = _run(setup, seed=5)
     s = np.asarray(sig.size_effect_m)[OFF]

@@ -14,12 +14,12 @@ from rosbags.typesys import Stores, get_typestore
 
 from imu_calib_ros.core.errors import InputError
 from imu_calib_ros.core.types import ImuSample, JointSample
-from imu_calib_ros.msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, NS_PER_S,
-                                                STAMP_MAX_NS, STAMP_MIN_NS, ImuCovariances,
-                                                imu_msg_from_sample, imu_sample_from_msg,
-                                                joint_sample_from_msg,
-                                                joint_state_msg_from_sample,
-                                                stamp_ns_from_time, time_fields_from_ns)
+from msg_adapters.convert import (IMU_MSGTYPE, JOINT_STATE_MSGTYPE, NS_PER_S,
+                                  STAMP_MAX_NS, STAMP_MIN_NS, ImuCovariances,
+                                  imu_msg_from_sample, imu_sample_from_msg,
+                                  joint_sample_from_msg,
+                                  joint_state_msg_from_sample,
+                                  stamp_ns_from_time, time_fields_from_ns)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 
@@ -230,7 +230,7 @@ def test_bad_target_is_refused() -> None:
 def test_convert_does_not_import_rclpy_at_module_import() -> None:
     import subprocess
     import sys
-    code = ('import sys, imu_calib_ros.msg_adapters.convert, imu_calib_ros.msg_adapters.bag; '
+    code = ('import sys, msg_adapters.convert, msg_adapters.bag; '
             'bad = [m for m in sys.modules if m.split(".")[0] in '
             '("rclpy", "sensor_msgs", "rosbags")]; print(bad); assert not bad')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

@@ -24,9 +24,9 @@ from imu_calib_ros.core.fixture import load_fixture  # noqa: E402
 from imu_calib_ros.core.imu_grade import load_grade  # noqa: E402
 from imu_calib_ros.core.plans import build_profile, plan_from_dict  # noqa: E402
 from imu_calib_ros.core.simulator import SimConfig, simulate  # noqa: E402
-from imu_calib_ros.msg_adapters.bag import read_bag, write_bag  # noqa: E402
-from imu_calib_ros.msg_adapters.convert import (imu_sample_from_msg,  # noqa: E402
-                                                joint_sample_from_msg, stamp_ns_from_time)
+from msg_adapters.bag import read_bag, write_bag  # noqa: E402
+from msg_adapters.convert import (imu_sample_from_msg,  # noqa: E402
+                                  joint_sample_from_msg, stamp_ns_from_time)
 from imu_calib_ros.nodes.common import reliable_qos  # noqa: E402
 
 

@@ -27,9 +27,9 @@ from imu_calib_ros.core.imu_grade import load_grade  # noqa: E402
 from imu_calib_ros.core.methods import modulation as mod  # noqa: E402
 from imu_calib_ros.core.plans import build_profile, plan_from_dict  # noqa: E402
 from imu_calib_ros.core.simulator import SimConfig, simulate  # noqa: E402
-from imu_calib_ros.msg_adapters.convert import (imu_msg_from_sample,  # noqa: E402
-                                                imu_sample_from_msg,
-                                                joint_state_msg_from_sample)
+from msg_adapters.convert import (imu_msg_from_sample,  # noqa: E402
+                                  imu_sample_from_msg,
+                                  joint_state_msg_from_sample)
 from imu_calib_ros.nodes.common import reliable_qos  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -27,7 +27,7 @@ from rclpy.node import Node  # noqa: E402
 from imu_calib_ros.core.calibration import CalibrationResult  # noqa: E402
 from imu_calib_ros.core.sensor_model import compensate, mean_rate_derivative  # noqa: E402
 from imu_calib_ros.core.types import ImuSample  # noqa: E402
-from imu_calib_ros.msg_adapters.convert import imu_msg_from_sample  # noqa: E402
+from msg_adapters.convert import imu_msg_from_sample  # noqa: E402
 from imu_calib_ros.nodes.common import latched_qos, reliable_qos  # noqa
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -300,7 +300,7 @@ def test_calibration_node_detects_the_imu_rate(ros: Node, tmp_path: Path) -> Non
     from imu_calib_ros.core.estimator.config import EstimatorConfig
     from imu_calib_ros.core.fixture import Fixture
     from imu_calib_ros.core.imu_grade import load_grade
-    from imu_calib_ros.nodes.common import StreamCompensation
+    from imu_calib_ros.core.stream_compensation import StreamCompensation
     # the grade hint gives the corrected stream its noise term (no grade: calibration
     # uncertainty only, until one is given)
     proc = start('calibration', {'diagnostics_rate_hz': 5.0, 'estimator_mode': 'thread',

@@ -188,7 +188,7 @@ def small_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from imu_calib_ros.core.imu_grade import load_grade
     from imu_calib_ros.core.plans import build_profile, plan_from_dict
     from imu_calib_ros.core.simulator import SimConfig, simulate
-    from imu_calib_ros.msg_adapters.bag import write_bag
+    from msg_adapters.bag import write_bag
     fx = load_fixture('three_axis')
     plan = plan_from_dict({'name': 't', 'steps': [{'dwell': {'duration_s': 1.0}}]}, 'test')
     sim = simulate(fx, build_profile(plan, fx), load_grade('nav_grade'),
@@ -209,7 +209,7 @@ def test_bag_player_integer_rate_relative_topics_and_true_exit_lines(small_bag: 
               tmp_path)
     log = out.stdout + out.stderr
     assert out.returncode == 0, log
-    from imu_calib_ros.msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     imu, joints = read_bag(small_bag)
     assert f'bag_player: published {len(imu) + len(joints)} messages' in log, log
     assert 'Failed to publish log message' not in log, log

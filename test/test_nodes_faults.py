@@ -334,7 +334,7 @@ def test_5khz_overload_drops_with_counters_memory_and_latency_bounded(ros: Node,
     from sensor_msgs.msg import Imu
     from imu_calib_ros.nodes.common import sensor_qos
     diags: list[Any] = []
-    from imu_calib_ros.nodes.common import DrainingSubscription
+    from imu_calib_ros.nodes.input_thread import DrainingSubscription
     # this listener takes whole bursts per executor wake (a per-message spin_once would
     # itself fall behind at 5 kHz and show its own backlog as latency)
     drain = DrainingSubscription(ros, Imu, 'imu/data_corrected', lambda m: lat.append(

@@ -60,7 +60,7 @@ def spin() -> Any:
 
 def _publish(ros: Node, sim: Any, skip_imu: np.ndarray, skip_joint: set[int]) -> None:
     from sensor_msgs.msg import Imu, JointState
-    from imu_calib_ros.msg_adapters.convert import imu_msg_from_sample, \
+    from msg_adapters.convert import imu_msg_from_sample, \
         joint_state_msg_from_sample
     pub_i = ros.create_publisher(Imu, 'imu/data_raw', reliable_qos(5000))
     pub_j = ros.create_publisher(JointState, 'joint_states', reliable_qos(5000))

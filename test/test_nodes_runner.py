@@ -15,7 +15,7 @@ import pytest
 from imu_calib_ros.core.calibration import CalibrationResult
 from imu_calib_ros.core.sensor_model import SensorErrors
 from imu_calib_ros.core.types import JointSample
-from imu_calib_ros.nodes.estimator_runner import EstimatorRunner, is_diverged
+from imu_calib_ros.core.estimator.runner import EstimatorRunner, is_diverged
 
 
 class FakeEstimator:
@@ -131,7 +131,7 @@ def test_process_mode_runs_the_real_estimator_and_answers() -> None:
 def test_imu_cdr_round_trip_matches_rclpy() -> None:
     rclpy_ser = pytest.importorskip('rclpy.serialization')
     from sensor_msgs.msg import Imu
-    from imu_calib_ros.msg_adapters.convert import imu_cdr, imu_fields_from_cdr
+    from msg_adapters.convert import imu_cdr, imu_fields_from_cdr
     for frame in ('', 'a', 'imu', 'imu_link', 'a_longer_frame_name'):
         cov_w = tuple(np.arange(9.0) + 0.5)
         cov_a = tuple(np.arange(9.0) * -2.0)

@@ -157,7 +157,7 @@ def test_short_record_warns_and_bounds() -> None:
 
 def _static_bag(tmp_path, seed: int = 5, n: int = 60_000, rate: float = 100.0):
     from imu_calib_ros.core.types import ImuBatch, JointBatch
-    from imu_calib_ros.msg_adapters.bag import write_bag
+    from msg_adapters.bag import write_bag
     rng = np.random.default_rng(seed)
     dt = 1.0 / rate
     y = np.hstack([simulate_axes(n, dt, rng=rng, n_axes=3, **GYRO),

@@ -43,3 +43,11 @@ def test_launch_files_compile() -> None:
     for f in files:
         compile(f.read_text(), str(f), 'exec')  # syntax only: no launch wheels here
         assert 'generate_launch_description' in f.read_text()
+
+
+def test_both_top_level_packages_are_packaged() -> None:
+    """msg_adapters sits beside imu_calib_ros (issue 14 item 7): setup.py ships both."""
+    setup = (ROOT / 'setup.py').read_text()
+    assert "'msg_adapters'" in setup and "'imu_calib_ros'" in setup
+    import msg_adapters
+    assert Path(msg_adapters.__file__).resolve().parent == ROOT / 'msg_adapters'

@@ -12,7 +12,7 @@ from imu_calib_ros.core.estimator import EstimatorConfig
 from imu_calib_ros.core.estimator.replay import replay_pass
 from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.core.imu_grade import load_grade
-from imu_calib_ros.msg_adapters.bag import iter_bag
+from msg_adapters.bag import iter_bag
 
 FX = load_fixture('three_axis')
 GRADE = load_grade('nav_grade')

@@ -223,7 +223,7 @@ def test_a_wrong_sign_or_grade_is_refused(nav_case: tuple[Path, Any], tmp_path: 
     calibration 380,000 sigma from the unit's own, and the self-check refused it) and a MEMS
     grade hint for a navigation-grade unit (its noise floors make the filter gate its updates
     and re-align)."""
-    from imu_calib_ros.msg_adapters.bag import read_bag, write_bag
+    from msg_adapters.bag import read_bag, write_bag
     bag, truth = nav_case
     extra: tuple[str, ...] = ()
     if wrong == 'accel_x_sign':
@@ -263,7 +263,7 @@ def test_nis_accounting_covers_every_filter_of_the_run(tmp_path: Path) -> None:
     from imu_calib_ros.core.estimator import load_estimator_config
     from imu_calib_ros.core.estimator.replay import replay_run
     from imu_calib_ros.core.fixture import load_fixture
-    from imu_calib_ros.msg_adapters.bag import iter_bag
+    from msg_adapters.bag import iter_bag
     bag, truth = make_case(tmp_path, unit='nav', seed=2, drop_fraction_imu=0.03)
     run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None,
                      load_estimator_config(None))

@@ -336,8 +336,8 @@ def test_mean_rate_derivative_not_across_a_gap() -> None:
 @pytest.mark.parametrize('hz', [50.0, 100.0, 200.0, 400.0, 800.0])
 def test_causal_rate_derivative_gap_rule_at_exactly_one_and_a_half_periods(hz: float) -> None:
     """The offline causal derivative decides a gap exactly as the live node does
-    (``nodes.common.StreamCompensation``: ``0 < dn * 1e-9 <= 1.5 * period``), also at the
-    boundary, where a comparison in integer ns rounds the other way at these rates."""
+    (``core.stream_compensation.StreamCompensation``: ``0 < dn * 1e-9 <= 1.5 * period``), also
+    at the boundary, where a comparison in integer ns rounds the other way at these rates."""
     period = 1.0 / hz
     thr = int(round(1.5 * period * 1e9))
     for dn in range(thr - 2, thr + 3):

@@ -336,7 +336,8 @@ def _sim_and_nav(fixture_name: str, plan, errors=None, mounting=None):
 
 
 # every shipped plan, each on one fixture that can run it (srt_then_kozlov and
-# srt_kozlov_bias chain the others, 21 and 34 min: slow); every other plan x fixture pair runs with -m slow
+# srt_kozlov_bias chain the others, 21 and 34 min: slow); every other plan x fixture pair runs
+# with -m slow
 FIXTURES = ('savage_2axis', 'three_axis')
 FAST_CASES = {'static_6pos': 'savage_2axis', 'savage_srt': 'savage_2axis',
               'kozlov_oscillation': 'three_axis', 'rotation_modulation': 'three_axis',

@@ -302,7 +302,7 @@ def test_drops_come_in_bursts_and_keep_the_ends(tmp_path: Path) -> None:
 
 # --------------------------------------------------------------------------- bag I/O
 def test_bag_reads_back_with_rosbags_and_with_our_reader(tmp_path: Path) -> None:
-    from imu_calib_ros.msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     fxp = _fixture_file(tmp_path, axes=((0, 0, 1.0), (1.0, 0, 0)))
     fx = WorldFixture.from_yaml(fxp)
     prof = joint_profile(_plan([{'dwell': {'duration_s': 0.5}},

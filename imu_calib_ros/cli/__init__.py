@@ -76,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def add_urdf_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of a URDF fixture (issue 15: ``--fixture robot.urdf --base-link B --imu-link L``)."""
+    """Options of a URDF fixture (issue 15: ``--fixture robot.urdf --base-link B
+    --imu-link L``)."""
     g = parser.add_argument_group('URDF fixture (a robot arm or any chain as the turntable)')
     g.add_argument('--base-link', default='', metavar='B',
                    help='with a .urdf fixture: the link fixed to the earth (chain start)')

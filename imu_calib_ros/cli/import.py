@@ -15,10 +15,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..core.errors import InputError
+
 #: the same as core.exchange's (the parser stays light: no numpy at --help)
 FORMATS = ('kalibr', 'openvins', 'imu_calib', 'imu_tk')
-
-from ..core.errors import InputError
 
 
 def register(subparsers: Any) -> None:

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     """Read, demodulate, write."""
     from ..core.fixture import load_fixture
     from ..core.methods.modulation import demodulate
-    from ..msg_adapters.bag import read_bag, write_bag
+    from msg_adapters.bag import read_bag, write_bag
     fixture = load_fixture(args.fixture)
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
     if args.causal and args.mode != 'continuous':

@@ -58,14 +58,15 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
     import numpy as np
 
     from ..core.allan import AllanAccumulator
-    from ..core.types import GAP_PERIODS
-    from ..msg_adapters.bag import iter_bag_batches
+    from ..core.types import GAP_PERIODS, ImuBatch
+    from msg_adapters.bag import iter_bag_batches
     acc = None
     last = None
     period_ns = 0.0
     for b in iter_bag_batches(bag, imu_topic, None):
         if not len(b):
             continue
+        assert isinstance(b, ImuBatch)  # no joint topic asked
         t = b.stamps_ns.astype(np.int64)
         y = np.hstack([b.gyro_rad_s, b.accel_m_s2])
         if acc is None:
@@ -79,7 +80,7 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
         for c in cuts:
             acc.add(y[start:c])
             acc.new_segment()
-            start = c
+            start = int(c)
         acc.add(y[start:])
         last = int(t[-1])
         if progress is not None:
@@ -97,7 +98,7 @@ def accumulate_windows(bag: str, imu_topic: str, joint_topic: str, min_static_s:
 
     from ..core.allan import AllanAccumulator
     from ..core.estimator.coarse import static_windows
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     imu, joints = read_bag(bag, imu_topic, joint_topic)
     if len(imu) < 2 or len(joints) < 2:
         raise InputError(f'{bag}: too few IMU or joint samples for stationary windows')
@@ -133,7 +134,7 @@ def _write_yaml(path: Path, data: Any, comments: list[str]) -> None:
 def run(args: Any) -> int:
     """Run the sub-command."""
     from ..core.noise_characterisation import characterise
-    from ..msg_adapters.bag import list_topics
+    from msg_adapters.bag import list_topics
     outs = [Path(p) for p in (args.output, args.report, args.kalibr) if p]
     for out, ex in zip(outs, ('noise.yaml', 'noise.html', 'imu.yaml')):
         check_output_file(out, ex)

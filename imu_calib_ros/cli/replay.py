@@ -20,8 +20,9 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from msg_adapters import DEFAULT_REORDER_WINDOW_S
+
 from ..core.errors import InputError, SelfCheckError
-from ..msg_adapters import DEFAULT_REORDER_WINDOW_S
 from . import add_topic_arguments, add_urdf_arguments, check_output_file, urdf_options
 
 if TYPE_CHECKING:
@@ -36,7 +37,8 @@ def register(subparsers: Any) -> None:
                               description=__doc__.split('\n\n')[0] if __doc__ else None)
     p.add_argument('bag', metavar='BAG', help='bag directory or .mcap file')
     p.add_argument('--fixture', required=True, metavar='F',
-                   help='fixture name, YAML path (CONTRACT 2) or .urdf (with --base-link, --imu-link)')
+                   help='fixture name, YAML path (CONTRACT 2) or .urdf (with --base-link, '
+                        '--imu-link)')
     add_urdf_arguments(p)
     p.add_argument('--output', '-o', required=True, metavar='CALIB.yaml',
                    help='calibration file to write (CONTRACT 4)')
@@ -113,7 +115,7 @@ def _joints_the_fixture_lacks(args: Any, fixture: Any) -> str:
     wrong table shows only as rotations the fit cannot explain), else ''."""
     import numpy as np
 
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     try:
         _, joints = read_bag(args.bag, args.imu_topic, args.joint_topic, args.reorder_window)
     except Exception:  # noqa: BLE001 - a hint only; the original error stands
@@ -137,7 +139,7 @@ def run(args: Any) -> int:
     """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
     from ..core.fixture import load_fixture
     from ..core.imu_grade import load_grade
-    from ..msg_adapters.bag import iter_bag, read_bag
+    from msg_adapters.bag import iter_bag, read_bag
     out = Path(args.output)
     if args.iterations < 1:
         raise InputError(f'--iterations must be >= 1, got {args.iterations}')

@@ -71,7 +71,7 @@ def _nav_velocity(args: argparse.Namespace, calib, data=None):  # noqa: ANN001, 
     from ..core.methods.windows import joints_at, stationary_windows
     from ..core.sensor_model import compensate
     from ..core.strapdown import Strapdown
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     if args.fixture is None:
         raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')
     fx = load_fixture(args.fixture)
@@ -115,18 +115,18 @@ def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN20
     from ..core.fixture import load_fixture
     from ..core.methods.windows import joint_positions, stationary_windows
     from ..core.sensor_model import SensorErrors
-    from ..msg_adapters.bag import read_bag
+    from msg_adapters.bag import read_bag
     from ..report.bag_facts import BagFacts, content_hash, pooled_allan
     if args.fixture is None:
         raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')
     fx = load_fixture(args.fixture)
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
     t0 = int(imu.stamps_ns[0])
-    t_imu = (imu.stamps_ns - t0) * 1e-9
+    t_imu = (imu.stamps_ns - t0).astype(np.float64) * 1e-9
     dt = float(np.median(np.diff(t_imu)))
     wins = stationary_windows(imu, joints, fx, min_duration_s=2.0)
     q = np.degrees(joint_positions(joints, fx.joint_names))
-    tj = (joints.stamps_ns - t0) * 1e-9
+    tj = (joints.stamps_ns - t0).astype(np.float64) * 1e-9
     step = max(1, len(tj) // 4000)
     allan = pooled_allan(imu.gyro_rad_s, imu.accel_m_s2, dt, [(w.i0, w.i1) for w in wins])
     nav = {}

@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.imu_grade import load_grade
     from ..core.plans import build_profile, load_plan
     from ..core.sensor_model import SensorErrors
-    from ..msg_adapters.bag import remove_bag, write_bag
+    from msg_adapters.bag import remove_bag, write_bag
 
     fixture = load_fixture(args.fixture, urdf_options(args))
     plan = load_plan(args.plan)

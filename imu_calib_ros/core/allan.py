@@ -168,8 +168,8 @@ class AllanAccumulator:
                 pts = np.array([n // s + 1 for n in segs if n // s >= 2 * k], np.int64)
                 rows.append((tau, np.sqrt(avar), int(lvl.counts[i]), s, k, pts))
         rows.sort(key=lambda r: r[0])
-        tau = np.array([r[0] for r in rows])
-        return AllanCurve(tau, np.array([r[1] for r in rows]).reshape(len(rows), self.n_axes),
+        taus = np.array([r[0] for r in rows])
+        return AllanCurve(taus, np.array([r[1] for r in rows]).reshape(len(rows), self.n_axes),
                           np.array([r[2] for r in rows], np.int64),
                           np.array([r[3] for r in rows], np.int64),
                           np.array([r[4] for r in rows], np.int64),

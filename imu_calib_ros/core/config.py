@@ -112,7 +112,7 @@ def _check_type(tp: Any, value: Any, source: str | None, key: str) -> Any:
                               key)
         return tuple(_check_type(a, v, source, f'{key}[{i}]')
                      for i, (a, v) in enumerate(zip(args, value)))
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return from_mapping(tp, value, source, prefix=key)
     if tp is bool:
         if not isinstance(value, bool):

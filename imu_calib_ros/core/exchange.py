@@ -214,11 +214,11 @@ def export(calib: CalibrationResult, fmt: str, noise: Any = None, rostopic: str 
             Tg, R_I_b = k['A'] @ k['C_gyro_i'], k['R_i_b']
         else:
             # w_I = Tw^-1 (w - bg - Tg a_I) = R w_b: Bg^-1 = R^T Dw, Dw upper
-            Rt, Dw = rotation_times_upper(np.linalg.inv(m.Bg))
+            Rt, Dw = rotation_times_upper(np.linalg.inv(m.Bg))  # type: ignore[arg-type]
             R_I_b = Rt.T
             # a_I = R_ACCtoIMU Da (a - ba) = R Ba^-1 (a - ba)
             Q2, Da = rotation_times_upper(R_I_b @ np.linalg.inv(m.Ba))
-            Tw, R_IMUtoGYRO, Ta, R_IMUtoACC = np.linalg.inv(Dw), I3, np.linalg.inv(Da), Q2.T
+            Tw, R_IMUtoGYRO, Ta, R_IMUtoACC = np.linalg.inv(Dw), I3, np.linalg.inv(Da), Q2.T  # type: ignore[assignment]
             Tg = m.Gf @ R_I_b.T
         head.append('OpenVINS (Propagator.cpp): a_I = R_IMUtoACC^T Ta^-1 (a - b_a), w_I = '
                     'R_IMUtoGYRO^T Tw^-1 (w - b_g - Tg a_I); Tg multiplies a_I (IMU frame)')
@@ -311,7 +311,7 @@ def import_text(texts: dict[str, str], fmt: str, source: str, frame_id: str = 'i
         SM = _mat(d, 'SM', source)
         b = _mat(d, 'bias', source, (3,))
         Ba = np.linalg.inv(SM)  # f = SM a - bias = SM (a - Ba bias)
-        lm = LinearModel(I3, Ba, np.zeros((3, 3)), zero3, Ba @ b)
+        lm = LinearModel(I3, Ba, np.zeros((3, 3)), zero3, Ba @ b)  # type: ignore[arg-type]
     else:
         mats = {}
         for suffix in ('_acc.calib', '_gyro.calib'):
@@ -326,7 +326,7 @@ def import_text(texts: dict[str, str], fmt: str, source: str, frame_id: str = 'i
             T, K = np.array(nums[:9]).reshape(3, 3), np.array(nums[9:18]).reshape(3, 3)
             mats[suffix] = (np.linalg.inv(T @ K), np.array(nums[18:21]))
         (Ba, ba), (Bg, bg) = mats['_acc.calib'], mats['_gyro.calib']
-        lm = LinearModel(Bg, Ba, np.zeros((3, 3)), bg, ba)
+        lm = LinearModel(Bg, Ba, np.zeros((3, 3)), bg, ba)  # type: ignore[arg-type]
     errors, R_b_F = errors_of(lm)
     fixed = tuple(k for k in ('gyroscope.scale_asymmetry', 'accelerometer.scale_asymmetry',
                               'accelerometer.quadratic', 'accelerometer.size_effect'))

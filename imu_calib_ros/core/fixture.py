@@ -1,4 +1,5 @@
-"""The fixture (turntable or robot arm) of CONTRACT section 2 and the exact kinematics of its chain.
+"""The fixture (turntable or robot arm) of CONTRACT section 2 and the exact kinematics of its
+chain.
 
 ``R_enu_imu = Rot(a_1, q_1) ... Rot(a_n, q_n) R_rpy``: joint ``i`` turns about its axis
 ``a_i``, given in its parent frame (the first joint's parent is the site's ENU frame); the

@@ -49,7 +49,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import setting
-from .earth import EARTH_RATE_RAD_S
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -120,10 +119,10 @@ class GuardConfig:
                                       'fraction: diverged', 0.01, 1.0)
     max_mean_nis_per_dof: float = setting(20.0, 'mean NIS per measurement dof in the window above '
                                      'this: diverged', 1.0)
-    state_range_sigmas: float = setting(50.0, 'a calibration state beyond this many prior sigmas '
-                                   'has left its physical range: diverged', 3.0)
-    max_velocity_m_s: float = setting(1.0, 'navigated velocity above this: diverged (the IMU point '
-                                 'stays within centimetres of the axes)', 1e-3)
+    state_range_sigmas: float = setting(50.0, 'a calibration state beyond this many prior '
+                                        'sigmas has left its physical range: diverged', 3.0)
+    max_velocity_m_s: float = setting(1.0, 'navigated velocity above this: diverged (the IMU '
+                                      'point stays within centimetres of the axes)', 1e-3)
     warn_hold_s: float = setting(10.0, 'health stays WARN this long (data time) after a rejection '
                             'or gap', 0.0)
     stale_after_s: float = setting(1.0, "health is STALE when no IMU sample was accepted for this "
@@ -348,19 +347,24 @@ class InputGuard:
             idx = [list(names).index(n) for n in self.joint_names]
         except ValueError:
             self.unknown_joint_names = tuple(names)
-            return self._reject_joint('joint_missing_names')
+            self._reject_joint('joint_missing_names')
+            return None
         q = np.asarray(positions_rad, float)
         if q.ndim != 1 or q.shape[0] != len(names):
-            return self._reject_joint('joint_missing_names')
+            self._reject_joint('joint_missing_names')
+            return None
         q = q[idx]
         if not np.all(np.isfinite(q)):
-            return self._reject_joint('joint_non_finite')
+            self._reject_joint('joint_non_finite')
+            return None
         if self._last_joint is not None:
             t0, q0 = self._last_joint
             if stamp_ns == t0:
-                return self._reject_joint('joint_duplicate_stamp')
+                self._reject_joint('joint_duplicate_stamp')
+                return None
             if stamp_ns < t0:
-                return self._reject_joint('joint_out_of_order')
+                self._reject_joint('joint_out_of_order')
+                return None
         self._last_joint = (int(stamp_ns), q)
         self._add_pending(np.array([stamp_ns], np.int64), q[None, :])
         return q
@@ -445,7 +449,9 @@ class InputGuard:
         dq = np.diff(q, axis=0)
         dq -= 2 * np.pi * np.round(dq / (2 * np.pi))  # wrapped encoders (CONTRACT 1)
         qd = dq / (np.diff(t) * 1e-9)[:, None]
-        u = self._axes_enu(q[:-1] + 0.5 * dq)  # (M, n, 3) at the interval middles
+        axes_enu = self._axes_enu
+        assert axes_enu is not None  # the caller checks
+        u = axes_enu(q[:-1] + 0.5 * dq)  # (M, n, 3) at the interval middles
         rate = np.linalg.norm(np.einsum('mi,mij->mj', qd, u), axis=1)
         mid = 0.5 * (t[:-1] + t[1:]).astype(float)
         self._rate_t = np.concatenate([self._rate_t, mid])[-8192:]

@@ -116,7 +116,7 @@ class NoiseResult:
             g[b_key] = _FLICKER_FLOOR * b / _GM_PEAK
             col = _column(sensor)
             taus = [f.terms['B'].tau_s for f in self.fits[col:col + 3] if f.terms['B'].shown]
-            g[c_key] = float(np.median(taus)) / _GM_TAU if taus else 3600.0
+            g[c_key] = float(np.median(taus)) / _GM_TAU if taus else 3600.0  # type: ignore[arg-type]
             g[q_key] = math.sqrt(12.0) * self.value(sensor, 'Q')
         return {'imu_grade': g, 'noise_characterisation': self.details()}
 

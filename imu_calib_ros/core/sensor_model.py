@@ -34,7 +34,7 @@ import dataclasses
 import math
 import weakref
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -338,7 +338,8 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     ``causal=True``: backward difference (mean rate k minus mean rate k-1, over
     ``(t_k - t_{k-1})`` from the int64 stamps), which refers to the time half a sample
     earlier, and zero at the first sample of each stretch: only past samples, what a live
-    node can compute (``nodes.common.StreamCompensation`` does this per sample, same bits).
+    node can compute (``core.stream_compensation.StreamCompensation`` does this per sample,
+    same bits).
     Never across a gap (CONTRACT 1, :func:`~.types.sample_intervals_ns`, gaps judged
     against ``nominal_period_s`` or, if None, the median interval): each stretch between
     gaps is differentiated on its own (central: one-sided at its ends, zero for a lone
@@ -368,10 +369,10 @@ def mean_rate_derivative(stamps_ns: ArrayLike, gyro_rad_s: ArrayLike,
     if np.any(dt <= 0):
         raise ValueError('stamps must be strictly increasing')
     if causal:
-        # the live node's comparison, in seconds (nodes.common.StreamCompensation): the
-        # same decision at an interval of exactly GAP_PERIODS periods
+        # the live node's comparison, in seconds (core.stream_compensation.StreamCompensation):
+        # the same decision at an interval of exactly GAP_PERIODS periods
         d = np.zeros_like(w)
-        dt_s = np.diff(stamps.astype(np.int64)) * 1e-9
+        dt_s = np.diff(stamps.astype(np.int64)).astype(np.float64) * 1e-9
         period_s = (float(np.median(dt_s)) if nominal_period_s is None
                     else float(nominal_period_s))
         ok = dt_s <= GAP_PERIODS * period_s
@@ -414,7 +415,7 @@ def _inverse(e: SensorErrors) -> _Inverse:
     """The constants of ``e`` for :func:`compensate`, computed once per (immutable) object."""
     c = _INVERSES.get(e)
     if c is None:
-        def t(a: FloatArray) -> tuple[float, ...]:
+        def t(a: ArrayLike) -> tuple[float, ...]:
             return tuple(float(x) for x in np.ravel(a))
         c = _Inverse(t(np.linalg.inv(np.eye(3) + e.gyro_scale_misalignment)),
                      t(np.linalg.inv(np.eye(3) + e.accel_scale_misalignment)),
@@ -478,9 +479,8 @@ def _start(c: _Inverse, wm: tuple[Any, Any, Any],
 _TINY = 4.0 * float(np.finfo(float).eps)
 
 
-def _compensate_one(c: _Inverse, wm_raw: tuple[float, float, float],
-                    am_raw: tuple[float, float, float],
-                    wd: tuple[float, float, float] | None,
+def _compensate_one(c: _Inverse, wm_raw: Sequence[float], am_raw: Sequence[float],
+                    wd: Sequence[float] | None,
                     max_iterations: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """One sample in pure Python floats (~20x faster than numpy on (1, 3) arrays).
 
@@ -498,7 +498,7 @@ def _compensate_one(c: _Inverse, wm_raw: tuple[float, float, float],
     last = math.inf
     stalled = 0
     for _ in range(max_iterations):
-        w_new, f_new = _step(c, wm, am, w, f, wd)
+        w_new, f_new = _step(c, wm, am, w, f, wd)  # type: ignore[arg-type] # wd: 3 floats
         change = max(max(abs(w_new[0] - w[0]), abs(w_new[1] - w[1]), abs(w_new[2] - w[2]))
                      / w_scale,
                      max(abs(f_new[0] - f[0]), abs(f_new[1] - f[1]), abs(f_new[2] - f[2]))
@@ -529,8 +529,8 @@ def _compensate_rows(c: _Inverse, wm_raw: FloatArray, am_raw: FloatArray,
     if bad.any():  # iterate on zeros there (no warnings), NaN out at the end
         wm_raw, am_raw = (np.where(bad[:, None], 0.0, x) for x in (wm_raw, am_raw))
         wd = None if wd is None else np.where(bad[:, None], 0.0, wd)
-    wm = tuple(wm_raw[:, i] - c.bg[i] for i in range(3))
-    am = tuple(am_raw[:, i] - c.ba[i] for i in range(3))
+    wm = (wm_raw[:, 0] - c.bg[0], wm_raw[:, 1] - c.bg[1], wm_raw[:, 2] - c.bg[2])
+    am = (am_raw[:, 0] - c.ba[0], am_raw[:, 1] - c.ba[1], am_raw[:, 2] - c.ba[2])
     w, f = _start(c, wm, am)
     w_scale = np.maximum(np.maximum(np.maximum(abs(w[0]), abs(w[1])), abs(w[2])), 1e-12)
     f_scale = np.maximum(np.maximum(np.maximum(abs(f[0]), abs(f[1])), abs(f[2])), 1e-9)

@@ -94,7 +94,7 @@ class SimResult:
     @property
     def times_s(self) -> FloatArray:
         """IMU stamps as profile time [s] (interval ends)."""
-        return (self.imu.stamps_ns - self.config.start_stamp_ns) * 1e-9
+        return (self.imu.stamps_ns - self.config.start_stamp_ns).astype(np.float64) * 1e-9
 
     @cached_property
     def nav(self) -> Kinematics:
@@ -161,7 +161,7 @@ def simulate(fixture: Fixture, profile: JointProfile, grade: ImuGrade,
     block = max(1, int(config.block_s / dt))
     for k0 in range(0, n_imu, block):
         k1 = min(n_imu, k0 + block)
-        edges = np.arange(k0, k1 + 1) * dt
+        edges = np.arange(k0, k1 + 1).astype(np.float64) * dt
         gyro[k0:k1], accel[k0:k1] = _interval_means(true_fx, profile, errors, edges, bps,
                                                     nodes, weights)
         if progress is not None:

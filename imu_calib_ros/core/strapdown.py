@@ -325,7 +325,7 @@ class Strapdown:
             raise InputError('dt_s: every interval must be finite and > 0')
 
         # previous sample's mean rates (memory across calls) for coning and sculling
-        if self._prev_gyro is None:
+        if self._prev_gyro is None or self._prev_accel is None:  # both set together
             w_prev = np.vstack([w[:1], w[:-1]])
             f_prev = np.vstack([f[:1], f[:-1]])
             dt_prev = np.concatenate([dt[:1], dt[:-1]])

@@ -25,12 +25,13 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 
+from msg_adapters.bag import DEFAULT_IMU_TOPIC, DEFAULT_JOINT_TOPIC, iter_bag
+from msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample, \
+    time_msg_from_ns
+
 from ..cli import absolute_topic
 from ..core.errors import ImuCalibError
 from ..core.types import ImuSample
-from ..msg_adapters.bag import DEFAULT_IMU_TOPIC, DEFAULT_JOINT_TOPIC, iter_bag
-from ..msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample, \
-    time_msg_from_ns
 from .common import (Endpoint, NodeInterface, declare_config, print_help_if_asked,
                      reliable_qos)
 

@@ -7,8 +7,9 @@ Topics (relative names, remappable):
   ``queue_depth``);
 - publishes ``imu/data_corrected`` (``sensor_msgs/Imu``, same stamp and frame) for every
   accepted raw sample, compensated in the subscription callback by
-  :class:`~imu_calib_ros.nodes.common.StreamCompensation` (the compensator node's code) with
-  the last *good* estimate snapshot; covariances from its sigmas plus the sensor noise,
+  :class:`~imu_calib_ros.core.stream_compensation.StreamCompensation` (the compensator
+  node's code) with the last *good* estimate snapshot; covariances from its sigmas plus the
+  sensor noise,
   ``orientation_covariance[0] = -1`` (REP-145);
 - publishes, at ``estimate_rate_hz`` and transient-local (late subscribers get the latest),
   ``~/estimates`` (``diagnostic_msgs/DiagnosticArray``: every CONTRACT 4 value and its sigma
@@ -25,11 +26,11 @@ diagnostics follow ``/clock``; a backward jump of ``/clock`` (a looping bag) res
 estimator's navigation (rclpy jump callback); the estimator itself only sees message stamps.
 
 Threads: the raw IMU is served by its own thread
-(:class:`~imu_calib_ros.nodes.common.InputThread`: serialised bytes in, checked, put back in
-stamp order within ``reorder_window_s`` (:mod:`imu_calib_ros.core.reorder`, issue 17),
+(:class:`~imu_calib_ros.nodes.input_thread.InputThread`: serialised bytes in, checked, put
+back in stamp order within ``reorder_window_s`` (:mod:`imu_calib_ros.core.reorder`, issue 17),
 compensated and published as bytes, tens of microseconds), which queues the sample; the rest
 spins in a SingleThreadedExecutor, where a 20 Hz timer hands the queue to an
-:class:`~imu_calib_ros.nodes.estimator_runner.EstimatorRunner` (a child process by default,
+:class:`~imu_calib_ros.core.estimator.runner.EstimatorRunner` (a child process by default,
 or a thread), whose bounded queue drops and counts under overload. Faults (issue 6): see
 docs/NODES.md.
 """
@@ -52,20 +53,22 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
+from msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
+                                  time_msg_from_ns)
+
 from ..core.diagnostics import StampGapCounter, frame_mismatch, health_values, input_account
 from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
+from ..core.estimator.runner import EstimatorRunner, Snapshot
 from ..core.estimator.selfcheck import saved_extra
 from ..core.input_guard import rejection_counts
 from ..core.reorder import ReorderBuffer
+from ..core.stream_compensation import StreamCompensation
 from ..core.types import JointSample
-from ..msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
-                                    time_msg_from_ns)
-from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
-                     diag9, finite, finite3, latched_qos, quiet_publisher, reliable_qos,
-                     run_node, sensor_qos)
-from .estimator_runner import EstimatorRunner, Snapshot
+from .common import (Endpoint, NodeInterface, declare_config, diag9, finite, finite3,
+                     latched_qos, quiet_publisher, reliable_qos, run_node, sensor_qos)
 from .fixture_source import load_node_fixture, urdf_field
+from .input_thread import InputThread
 
 NODE_NAME = 'calibration'
 
@@ -233,7 +236,7 @@ class CalibrationNode(Node):
         self._first_imu_ns: int | None = None
         self._joint_ok = False
         self._last_joint_ns: int | None = None  # stamp of the last good joint state
-        self._last_rx = None
+        self._last_rx: Any = None  # rclpy Time of the last raw IMU message
         self._pub = self.create_publisher(Imu, 'imu/data_corrected',
                                           reliable_qos(cfg.queue_depth))
         self._imu_sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,

@@ -1,9 +1,8 @@
 """Shell helpers shared by the nodes: parameters from config dataclasses, QoS, start/stop.
 
-Nothing here computes physics except :class:`StreamCompensation`, which wraps the core's
-:func:`imu_calib_ros.core.sensor_model.compensate_one` (the same bits as ``compensate``) for
-one sample at a time so that the compensator node and the calibration node use literally
-the same code.
+Nothing here computes physics: the per-sample compensation both IMU nodes use is the core's
+:class:`imu_calib_ros.core.stream_compensation.StreamCompensation`, and the input threads
+built on rclpy internals are in :mod:`imu_calib_ros.nodes.input_thread`.
 """
 from __future__ import annotations
 
@@ -24,7 +23,6 @@ from typing import Any, Callable, Mapping, TypeVar
 
 import numpy as np
 import rclpy
-from rclpy.callback_groups import CallbackGroup
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
@@ -33,10 +31,10 @@ from rclpy.parameter import Parameter
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
+from msg_adapters.convert import stamp_ns_from_time, time_msg_from_ns  # noqa: F401
+
 from ..core.config import from_mapping, load_yaml
 from ..core.errors import ConfigError, ImuCalibError
-from ..core.types import GAP_PERIODS, FloatArray
-from ..msg_adapters.convert import stamp_ns_from_time, time_msg_from_ns  # noqa: F401
 
 T = TypeVar('T')
 
@@ -227,7 +225,7 @@ def _declare_mapping(node: Node, cls: type[Any], prefix: str, defaults: Any = No
         tp = hints[f.name]
         base, optional = _strip_optional(tp)
         default = _field_default(f, defaults)
-        if dataclasses.is_dataclass(base):
+        if isinstance(base, type) and dataclasses.is_dataclass(base):
             out[f.name] = _declare_mapping(node, base, f'{name}.', default, overrides)
             continue
         desc = _descriptor(f, tp, name)
@@ -316,7 +314,7 @@ def parameter_help(cls: type[Any], prefix: str = '', defaults: Any = None) -> li
         tp = hints[f.name]
         base, _ = _strip_optional(tp)
         default = _field_default(f, defaults)
-        if dataclasses.is_dataclass(base):
+        if isinstance(base, type) and dataclasses.is_dataclass(base):
             lines += parameter_help(base, f'{name}.', default)
             continue
         desc = _descriptor(f, tp, name)
@@ -520,160 +518,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
 
 
 # ---------------------------------------------------------------------------------------------
-# Streaming compensation (shared by the compensator and the calibration node)
-
-
-class StreamCompensation:
-    """Compensate one raw IMU sample at a time with a calibration; covariances for the message.
-
-    The values are :func:`imu_calib_ros.core.sensor_model.compensate_one` (the same bits as
-    ``compensate`` on ``(1, 3)`` arrays) with ``omega_dot_imu`` the backward difference of
-    consecutive raw mean rates (``sensor_model.mean_rate_derivative(causal=True)``: Kozlov &
-    Kapralov eq. 1 needs the angular acceleration for the size effect; a causal difference
-    keeps the output latency at zero samples), zero after a gap > 1.5 nominal periods.
-    Everything runs in Python floats: ~20-40 us per sample, no numpy call.
-
-    Covariances (diagonal, rad^2/s^2 and m^2/s^4): white noise of the mean over one interval,
-    ``N^2 / dt`` (CONTRACT 1: values are interval means), plus the first-order propagation of
-    the calibration's one-sigma values through the model of CONTRACT 3, treating the sigmas as
-    independent.
-
-    Parameters
-    ----------
-    result:
-        The calibration (``errors`` and ``sigma``), a :class:`CalibrationResult`.
-    gyro_noise_rad_s_rt_hz, accel_noise_m_s2_rt_hz:
-        White-noise densities (ARW, VRW) of the sensor.
-    nominal_period_s:
-        Configured nominal period [s], used for the noise variance after a gap or at the
-        first sample, and as the gap threshold (1.5 periods, CONTRACT 1) for the rate
-        derivative; ``0`` = detect it from the data: the median of the first
-        :attr:`RATE_INTERVALS` stamp intervals (:attr:`measured_period_s`, measured in
-        either case). Until then the rate derivative is zero and the noise of the mean uses
-        the median of the intervals seen so far (``FIRST_PERIOD_S`` before any interval).
-    """
-
-    RATE_INTERVALS = 20  # stamp intervals whose median is the measured period
-    RATE_TOLERANCE = 0.2  # a configured rate further than this (relative) from the measured
-    FIRST_PERIOD_S = 1e-3  # noise-of-the-mean period before any interval: errs large below 1 kHz
-
-    def __init__(self, result: Any, gyro_noise_rad_s_rt_hz: float = 0.0,
-                 accel_noise_m_s2_rt_hz: float = 0.0, nominal_period_s: float = 0.0):
-        from ..core.sensor_model import compensate_one
-        self._compensate_one = compensate_one
-        self._gyro_n2 = float(gyro_noise_rad_s_rt_hz) ** 2
-        self._accel_n2 = float(accel_noise_m_s2_rt_hz) ** 2
-        if not (math.isfinite(nominal_period_s) and nominal_period_s >= 0.0):
-            raise ValueError(f'nominal_period_s must be >= 0 (0 = detect), got {nominal_period_s}')
-        self.configured_period_s = float(nominal_period_s)
-        #: the period in use: the configured one, else the measured one (None until then)
-        self.nominal_period_s: float | None = self.configured_period_s or None
-        self.measured_period_s: float | None = None
-        #: one line when a configured rate is more than RATE_TOLERANCE off the measured one
-        self.rate_mismatch = ''
-        self._intervals_ns: list[int] = []
-        self._provisional_s = self.FIRST_PERIOD_S
-        self._prev: tuple[int, tuple[float, float, float]] | None = None
-        self.update(result)
-
-    @property
-    def intervals_ns(self) -> tuple[int, ...]:
-        """The stamp intervals the period was (or is being) measured from."""
-        return tuple(self._intervals_ns)
-
-    def _learn(self, interval_ns: int) -> None:
-        """Collect one stamp interval; at RATE_INTERVALS, fix the measured period."""
-        iv = self._intervals_ns
-        iv.append(interval_ns)
-        med = float(np.median(iv)) * 1e-9  # a few calls per start-up only
-        self._provisional_s = med
-        if len(iv) < self.RATE_INTERVALS:
-            return
-        if self.configured_period_s > 0.0:
-            f_cfg, f_meas = 1.0 / self.configured_period_s, 1.0 / med
-            if abs(f_meas / f_cfg - 1.0) > self.RATE_TOLERANCE:
-                self.rate_mismatch = (f'configured imu_rate_hz {f_cfg:g} but the stamps say '
-                                      f'{f_meas:.4g} Hz (median of {len(iv)} intervals)')
-        else:
-            self.nominal_period_s = med
-        self.measured_period_s = med  # last: readers in other threads see a complete state
-
-    def update(self, result: Any) -> None:
-        """Use a new calibration from the next sample on (keeps the rate-derivative memory).
-
-        One attribute assignment swaps everything, so a thread reading it concurrently sees
-        either the old or the new calibration, never a mix.
-        """
-        s = result.sigma
-        sq = tuple(tuple(float(v) ** 2 for v in np.ravel(x)) for x in (
-            s.gyro_bias_rad_s, s.gyro_scale_misalignment, s.gyro_scale_asymmetry,
-            s.gyro_g_sensitivity_rad_s_per_m_s2, s.accel_bias_m_s2, s.accel_scale_misalignment,
-            s.accel_scale_asymmetry, s.accel_quadratic_per_m_s2, s.size_effect_m))
-        self._cal = (result, sq)
-
-    @property
-    def result(self) -> Any:
-        """The calibration in use."""
-        return self._cal[0]
-
-    def reset(self) -> None:
-        """Forget the previous sample (after a gap, a time jump or a reset)."""
-        self._prev = None
-
-    def __call__(self, stamp_ns: int, gyro: tuple[float, float, float],
-                 accel: tuple[float, float, float]) -> tuple[tuple[float, ...], ...]:
-        """``(omega, f, gyro_var, accel_var)`` of one sample, each 3 floats."""
-        result, sq = self._cal
-        period = self.nominal_period_s
-        prev = self._prev
-        dt_s = period
-        wd = (0.0, 0.0, 0.0)
-        if prev is not None:
-            dn = stamp_ns - prev[0]
-            if self.measured_period_s is None and dn > 0:
-                self._learn(dn)
-            d = dn * 1e-9
-            if period is not None and 0.0 < d <= GAP_PERIODS * period:
-                p = prev[1]
-                wd = ((gyro[0] - p[0]) / d, (gyro[1] - p[1]) / d, (gyro[2] - p[2]) / d)
-                dt_s = d
-        if dt_s is None:  # rate not known yet: zero rate derivative, provisional period
-            dt_s = self._provisional_s
-        self._prev = (stamp_ns, gyro)
-        omega, f = self._compensate_one(result.errors, gyro, accel, wd)
-        gvar, avar = self._variances(sq, omega, f, wd, dt_s)
-        return omega, f, gvar, avar
-
-    def _variances(self, sq: tuple[tuple[float, ...], ...], w: tuple[float, ...],
-                   f: tuple[float, ...], wd: tuple[float, ...],
-                   dt_s: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """Diagonal variances of the compensated rate and specific force (see class doc).
-
-        Hand-written per component: numpy on 3-vectors costs more than the arithmetic.
-        """
-        g_b2, g_k2, g_a2, g_g2, a_b2, a_k2, a_a2, a_q2, a_r2 = sq
-        w2 = (w[0] * w[0], w[1] * w[1], w[2] * w[2])
-        f2 = (f[0] * f[0], f[1] * f[1], f[2] * f[2])
-        ng = self._gyro_n2 / dt_s
-        na = self._accel_n2 / dt_s
-        # d f_i / d r_ij = M[i][j], M = skew(omega_dot) + skew(omega)^2  (CONTRACT 3)
-        ww = w2[0] + w2[1] + w2[2]
-        m = ((w2[0] - ww, w[0] * w[1] - wd[2], w[0] * w[2] + wd[1]),
-             (w[1] * w[0] + wd[2], w2[1] - ww, w[1] * w[2] - wd[0]),
-             (w[2] * w[0] - wd[1], w[2] * w[1] + wd[0], w2[2] - ww))
-        gvar = []
-        avar = []
-        for i in range(3):
-            r = 3 * i
-            gvar.append(ng + g_b2[i] + g_a2[i] * w2[i]
-                        + g_k2[r] * w2[0] + g_k2[r + 1] * w2[1] + g_k2[r + 2] * w2[2]
-                        + g_g2[r] * f2[0] + g_g2[r + 1] * f2[1] + g_g2[r + 2] * f2[2])
-            mi = m[i]
-            avar.append(na + a_b2[i] + a_a2[i] * f2[i] + a_q2[i] * f2[i] * f2[i]
-                        + a_k2[r] * f2[0] + a_k2[r + 1] * f2[1] + a_k2[r + 2] * f2[2]
-                        + a_r2[r] * mi[0] * mi[0] + a_r2[r + 1] * mi[1] * mi[1]
-                        + a_r2[r + 2] * mi[2] * mi[2])
-        return tuple(gvar), tuple(avar)
+# Message values
 
 
 def diag9(var3: Any) -> tuple[float, ...]:
@@ -694,142 +539,3 @@ def finite3(*vectors: tuple[float, ...]) -> bool:
 def as_float(x: Any) -> float:
     """``float(x)``, NaN for None (for diagnostics values)."""
     return math.nan if x is None else float(x)
-
-
-class DrainingSubscription:
-    """A subscription whose callback also takes every message already waiting.
-
-    rclpy's Python executors cost a few hundred microseconds per callback (wait-set rebuild,
-    a coroutine and a task per message), which at 1-5 kHz is most of a core. After the
-    executor delivers one message, :meth:`_on_wake` takes the rest of the queue directly
-    from the subscription handle (what ``Executor._take_subscription`` does) up to
-    ``max_per_wake``, so the executor's cost is paid once per burst instead of per message.
-    ``handle(msg)`` is called for every message, in arrival order.
-    """
-
-    def __init__(self, node: Node, msg_type: Any, topic: str, handle: Callable[[Any], None],
-                 qos: QoSProfile, max_per_wake: int = 1000, **kwargs: Any):
-        from rclpy.event_handler import SubscriptionEventCallbacks
-        self._handle = handle
-        self._max = max_per_wake
-        self.wakes = 0
-        self.messages = 0
-        self.lost = 0  # messages the middleware reports as lost (DDS SAMPLE_LOST), if supported
-        events = SubscriptionEventCallbacks(message_lost=self._on_lost)
-        try:
-            self.sub = node.create_subscription(msg_type, topic, self._on_wake, qos,
-                                                event_callbacks=events, **kwargs)
-        except Exception:  # noqa: BLE001 - rmw without the message-lost event
-            self.sub = node.create_subscription(msg_type, topic, self._on_wake, qos, **kwargs)
-
-    def _on_lost(self, status: Any) -> None:
-        self.lost += int(status.total_count_change)
-
-    def _on_wake(self, msg: Any) -> None:
-        self.wakes += 1
-        self._handle(msg)
-        n = 1
-        sub = self.sub
-        handle = self._handle
-        try:
-            with sub.handle:
-                take = sub.handle.take_message
-                while n < self._max:
-                    info = take(sub.msg_type, sub.raw)
-                    if info is None:
-                        break
-                    handle(info[0])
-                    n += 1
-        finally:
-            self.messages += n
-
-
-class _NeverInExecutor(CallbackGroup):
-    """A callback group the executor never runs: its entities are served by our own thread."""
-
-    def can_execute(self, entity: Any) -> bool:
-        return False
-
-    def beginning_execution(self, entity: Any) -> bool:
-        return False
-
-    def ending_execution(self, entity: Any) -> None:
-        pass
-
-
-class InputThread:
-    """One subscription served by a dedicated thread: wait, take the whole burst, handle.
-
-    Measured on this 2-core machine at 1 kHz: rclpy's Python executor spends ~0.4 ms per
-    wake rebuilding its wait set (every timer, service, guard condition and QoS-event
-    handler of the node), which made the IMU callback path cost ~80 % of a core and its
-    queueing the p99 latency. Here the subscription sits in a callback group the executor
-    never runs, and this thread waits on a wait set holding only it (plus a stop guard
-    condition), in C without the GIL, then takes every waiting message
-    (``Subscription.handle.take_message``, what the executor does) and calls
-    ``handle(msg)`` for each, in arrival order. ``handle`` runs in this thread: it must only
-    touch state that is safe to share (counters, deques, atomic attribute swaps).
-    ``raw=True`` hands over the serialised bytes (no Python message object is built).
-    ``idle()``, if given, runs in this thread after every burst and wait; it returns the
-    seconds until it wants to run again (None: no hurry), e.g. to release samples held by a
-    :class:`~imu_calib_ros.core.reorder.ReorderBuffer` when the stream pauses.
-    """
-
-    def __init__(self, node: Node, msg_type: Any, topic: str, handle: Callable[[Any], None],
-                 qos: QoSProfile, name: str = 'input', raw: bool = False,
-                 idle: Callable[[], float | None] | None = None):
-        self._handle = handle
-        self._idle = idle
-        self._context = node.context
-        group = _NeverInExecutor()
-        self.sub = node.create_subscription(msg_type, topic, handle, qos, callback_group=group,
-                                            raw=raw)
-        self._gc = node.create_guard_condition(lambda: None, callback_group=group)
-        self.wakes = 0
-        self.messages = 0
-        self._stop = False
-        self.error = ''
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-        sub, handle, idle = self.sub, self._handle, self._idle
-        longest = 200_000_000  # 0.2 s: also notices a shut-down context
-        timeout = longest
-        try:
-            with self._context.handle, sub.handle, self._gc.handle:
-                ws = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, self._context.handle)
-                take = sub.handle.take_message
-                while not self._stop and self._context.ok():
-                    ws.clear_entities()
-                    ws.add_subscription(sub.handle)
-                    ws.add_guard_condition(self._gc.handle)
-                    ws.wait(timeout)
-                    self.wakes += 1
-                    while not self._stop:
-                        info = take(sub.msg_type, sub.raw)
-                        if info is None:
-                            break
-                        self.messages += 1
-                        handle(info[0])
-                    if idle is not None:
-                        again = idle()
-                        timeout = longest if again is None else \
-                            min(longest, max(int(again * 1e9), 100_000))
-        except Exception as exc:  # noqa: BLE001 - shutdown races; reported by the node
-            if not self._stop and self._context.ok():
-                self.error = f'{type(exc).__name__}: {exc}'
-
-    @property
-    def alive(self) -> bool:
-        return self._thread.is_alive()
-
-    def stop(self) -> None:
-        """End the thread (before the node is destroyed)."""
-        self._stop = True
-        try:
-            self._gc.trigger()
-        except Exception:  # noqa: BLE001 - context already shut down
-            pass
-        self._thread.join(2.0)

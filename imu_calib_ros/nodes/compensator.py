@@ -2,8 +2,8 @@
 
 The robot-side deployment after a calibration: subscribes ``imu/data_raw`` (sensor-data
 QoS), publishes ``imu/data_corrected`` with the same stamp and frame, values from
-:class:`~imu_calib_ros.nodes.common.StreamCompensation` in the IMU input thread
-(:class:`~imu_calib_ros.nodes.common.InputThread`, the code the calibration node uses),
+:class:`~imu_calib_ros.core.stream_compensation.StreamCompensation` in the IMU input thread
+(:class:`~imu_calib_ros.nodes.input_thread.InputThread`, the code the calibration node uses),
 covariances from the calibration's sigmas plus the sensor noise, and
 ``orientation_covariance[0] = -1`` (REP-145). A raw sample in another frame than the
 calibration's, or with a non-finite value, is dropped, counted and reported.
@@ -21,12 +21,15 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
+from msg_adapters.convert import imu_cdr, imu_fields_from_cdr
+
 from ..core.calibration import CalibrationResult
 from ..core.errors import ConfigError, ImuCalibError
 from ..core.reorder import ReorderBuffer
-from ..msg_adapters.convert import imu_cdr, imu_fields_from_cdr
-from .common import (Endpoint, InputThread, NodeInterface, StreamCompensation, declare_config,
-                     diag9, finite3, quiet_publisher, reliable_qos, run_node, sensor_qos)
+from ..core.stream_compensation import StreamCompensation
+from .common import (Endpoint, NodeInterface, declare_config, diag9, finite3, quiet_publisher,
+                     reliable_qos, run_node, sensor_qos)
+from .input_thread import InputThread
 
 NODE_NAME = 'compensator'
 

@@ -32,11 +32,12 @@ from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu, JointState
 
+from msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
+
 from ..core.errors import ConfigError
 from ..core.fixture import load_fixture
 from ..core.methods.modulation import MODES, StreamingDemodulator
 from ..core.reorder import ReorderBuffer
-from ..msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
 from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit,
                      quiet_publisher, reliable_qos, run_node, sensor_qos)
 

@@ -38,9 +38,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
+
 from ..core.errors import ImuCalibError, PlanError
 from ..core.types import FloatArray
-from ..msg_adapters.convert import joint_sample_from_msg, time_msg_from_ns
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      sensor_qos)
 from .fixture_source import load_node_fixture, urdf_field
@@ -184,6 +185,7 @@ class TurntableDriverNode(Node):
                 return
             self._start()
             return
+        assert self._t0_ns is not None  # set with the profile
         now_ns = self.get_clock().now().nanoseconds
         end_ns = self._t0_ns + int((cfg.lead_in_s + self._profile.duration_s + cfg.settle_s)
                                    * 1e9)

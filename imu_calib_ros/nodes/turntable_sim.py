@@ -31,9 +31,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample
+
 from ..core.errors import ConfigError, PlanError
 from ..core.types import FloatArray, ImuBatch, JointBatch
-from ..msg_adapters.convert import imu_msg_from_sample, joint_state_msg_from_sample
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      time_msg_from_ns)
 from .fixture_source import load_node_fixture, urdf_field
@@ -435,9 +436,9 @@ class TurntableSimNode(Node):
                     self.imu_published += 1
                     i += 1
                 else:
-                    s = joints.sample(j)
-                    self._joint_pub.publish(joint_state_msg_from_sample(s, JointState))
-                    self._last_joint_ns = s.stamp_ns
+                    sj = joints.sample(j)
+                    self._joint_pub.publish(joint_state_msg_from_sample(sj, JointState))
+                    self._last_joint_ns = sj.stamp_ns
                     self.joint_published += 1
                     j += 1
 

@@ -269,6 +269,7 @@ def nis_plot(extra: dict[str, Any]) -> str | None:
     nis = (h or {}).get('nis') if isinstance(h, dict) else None
     if not nis:
         return None
+    assert isinstance(h, dict)
     t = np.asarray(h['t_s'], float)
     fig, axes = plt.subplots(1, len(nis), figsize=(6.5 * len(nis), 3), squeeze=False)
     for ax, (kind, d) in zip(axes[0], nis.items()):

@@ -206,11 +206,11 @@ class Comparison:
 
 def _entries(key: str) -> list[tuple[str, str, tuple[int, ...]]]:
     """(label, group, index) of the free values of one CONTRACT 4 key."""
-    diag = [(i,) * 2 for i in range(3)]
-    upper = [(0, 1), (0, 2), (1, 2)]
-    off = [(i, j) for i in range(3) for j in range(3) if i != j]
-    full = [(i, j) for i in range(3) for j in range(3)]
-    vec = [(i,) for i in range(3)]
+    diag: list[tuple[int, ...]] = [(i,) * 2 for i in range(3)]
+    upper: list[tuple[int, ...]] = [(0, 1), (0, 2), (1, 2)]
+    off: list[tuple[int, ...]] = [(i, j) for i in range(3) for j in range(3) if i != j]
+    full: list[tuple[int, ...]] = [(i, j) for i in range(3) for j in range(3)]
+    vec: list[tuple[int, ...]] = [(i,) for i in range(3)]
 
     def lab(g: str, idx: tuple[int, ...]) -> str:
         # vectors and scale factors: one axis letter; other matrix entries: row, column

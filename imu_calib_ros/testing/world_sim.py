@@ -392,7 +392,7 @@ def _interval_means(inst: _Instant, edges: FloatArray, bps: FloatArray, nodes: F
     n_int = len(edges) - 1
     owner = np.clip(np.searchsorted(edges, 0.5 * (a + b), side='right') - 1, 0, n_int - 1)
     flagged = np.zeros(len(a), dtype=bool)
-    brackets: list[tuple[FloatArray, FloatArray, FloatArray, int, int]] = []
+    brackets: list[tuple[NDArray[np.intp], FloatArray, FloatArray, int, int]] = []
     if kinks:
         _, _, w_e, f_e = inst(np.concatenate([a, b[-1:]]))
         ends = np.stack([w_e, f_e])  # (2, S+1, 3)
@@ -427,8 +427,8 @@ def _interval_means(inst: _Instant, edges: FloatArray, bps: FloatArray, nodes: F
     return total / np.diff(edges)[:, None]
 
 
-def _bisect(inst: _Instant, s: FloatArray, lo: FloatArray, hi: FloatArray, which: int,
-            ax: int) -> tuple[FloatArray, FloatArray]:
+def _bisect(inst: _Instant, s: NDArray[np.intp], lo: FloatArray, hi: FloatArray, which: int,
+            ax: int) -> tuple[NDArray[np.intp], FloatArray]:
     """Roots of component ``ax`` of omega (which 0) or f (which 1) in brackets [lo, hi]."""
     lo, hi = lo.copy(), hi.copy()
 
@@ -529,10 +529,11 @@ def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
     for k0 in range(0, n, cfg.block):
         k1 = min(n, k0 + cfg.block)
         if cfg.sample_type == 'point':
-            g, acc, _, _ = inst(np.arange(k0 + 1, k1 + 1) * dt)
+            g, acc, _, _ = inst(np.arange(k0 + 1, k1 + 1).astype(np.float64) * dt)
             out[k0:k1] = np.concatenate([g, acc], axis=1)
         else:
-            out[k0:k1] = _interval_means(inst, np.arange(k0, k1 + 1) * dt, bps, nodes, weights)
+            out[k0:k1] = _interval_means(inst, np.arange(k0, k1 + 1).astype(np.float64) * dt,
+                                         bps, nodes, weights)
         if progress is not None:
             progress(k1 / n)
     gyro, accel = out[:, :3].copy(), out[:, 3:].copy()
@@ -771,4 +772,4 @@ def with_config(config: WorldConfig, **changes: Any) -> WorldConfig:
 
 def stamps_to_times(stamps_ns: Sequence[int], start_ns: int) -> FloatArray:
     """Profile time [s] of stamps (exact integer difference first)."""
-    return (np.asarray(stamps_ns, dtype=np.int64) - start_ns) * 1e-9
+    return (np.asarray(stamps_ns, dtype=np.int64) - start_ns).astype(np.float64) * 1e-9

@@ -342,7 +342,7 @@ def _cluster_lstsq(X: FloatArray, y: FloatArray, block: NDArray[np.intp], beta0:
     # the prior as extra rows of an augmented least squares, solved by SVD (the normal
     # equations square a condition number of ~1e9: collinear columns under a tiny noise);
     # the data rows enter through the R factor of QR([X y]) (8 rows instead of N)
-    Ry = np.linalg.qr(np.column_stack([X, y]), mode='r')
+    Ry: FloatArray = np.linalg.qr(np.column_stack([X, y]), mode='r')  # type: ignore[assignment]
     n_p = X.shape[1]
     R, qty = Ry[:n_p, :n_p], Ry[:n_p, n_p]
     rss0 = float(Ry[n_p, n_p] ** 2) if Ry.shape[0] > n_p else 0.0
@@ -385,8 +385,8 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     notes: list[str] = []
     t0 = int(t_imu_ns[0])
     dt = float(np.median(np.diff(t_imu_ns))) * 1e-9
-    ts = (t_imu_ns - t0) * 1e-9
-    tj = (t_joint_ns - t0) * 1e-9
+    ts = (t_imu_ns - t0).astype(np.float64) * 1e-9
+    tj = (t_joint_ns - t0).astype(np.float64) * 1e-9
     spline = CubicSpline(tj, q_joint, axis=0)
     wins = static_windows(t_joint_ns, q_joint, t_imu_ns, w, f, min_static_s, tol_rad)
     # --- noise (item 2): every window, Allan deviation at the sample period
@@ -434,7 +434,7 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # two rounds: the asymmetry regressor |omega_i| is the body rate the previous round
     # predicts (B w_nom), never the measured |w_i| (the target itself: with one rotation
     # direction it took half the scale factor)
-    fits = []
+    fits: list[tuple[FloatArray, FloatArray]] = []
     for _ in range(2):
         fits = []
         for i in range(3):
@@ -500,7 +500,7 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         nw = np.array([win.n for win in wins], float)
         A = np.zeros((3, 3))
         sA = np.zeros((3, 3))
-        fits: list[tuple[FloatArray, FloatArray]] = []
+        fits = []
         # window means weighted by their white noise; a weak prior (A = I +- 3 %, asymmetry
         # 0.3 %, bias 100 mg) keeps what the windows do not separate (with only the six
         # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays

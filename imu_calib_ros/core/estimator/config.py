@@ -29,26 +29,32 @@ class EstimatorConfig:
     estimate_gyro_bias: bool = setting(True, 'estimate the gyro biases bg (3)')
     estimate_gyro_scale: bool = setting(True, 'estimate the gyro scale factors diag(Kg) (3)')
     estimate_gyro_asymmetry: bool = setting(True, 'estimate the gyro scale asymmetries ag (3)')
-    estimate_gyro_misalignment: bool = setting(True, 'estimate the symmetric gyro misalignments (3)')
+    estimate_gyro_misalignment: bool = setting(True,
+                                               'estimate the symmetric gyro misalignments (3)')
     estimate_gyro_g_sensitivity: bool = setting(True, 'estimate the gyro g-sensitivity G (9); '
                                            'dropped when the grade gives it sigma 0')
     estimate_accel_bias: bool = setting(True, 'estimate the accelerometer biases ba (3)')
     estimate_accel_scale: bool = setting(True, 'estimate the accelerometer scale diag(Ka) (3)')
-    estimate_accel_asymmetry: bool = setting(True, 'estimate the accelerometer asymmetries aa (3)')
+    estimate_accel_asymmetry: bool = setting(True,
+                                             'estimate the accelerometer asymmetries aa (3)')
     estimate_accel_misalignment: bool = setting(True, 'estimate the accel misalignments (6)')
     estimate_accel_quadratic: bool = setting(True, 'estimate the accel quadratic terms qa (3)')
     estimate_size_effect: bool = setting(True, 'estimate the six size-effect coordinates r_ij')
-    estimate_lever_arm: bool = setting(True, 'estimate the reference point offset rho from the axes')
+    estimate_lever_arm: bool = setting(True,
+                                       'estimate the reference point offset rho from the axes')
     estimate_time_offset: bool = setting(False, 'estimate the accel-minus-gyro time offset (1)')
     # --- measurements --------------------------------------------------------------------
-    update_rate_hz: float = setting(10.0, 'rate of the zero-velocity (lever-arm) updates', 0.1, 1000.0)
+    update_rate_hz: float = setting(10.0, 'rate of the zero-velocity (lever-arm) updates', 0.1,
+                                    1000.0)
     # 1e-6: the pseudo-measurement itself is exact on a rigid fixture; with 5e-6 the mean NIS
     # of the velocity updates was 2.50 (of 3) on srt_then_kozlov at 200 Hz, with 1e-6 it is
     # 2.95 and every calibration sigma is unchanged to < 0.3 % (bench/bench_accuracy.py).
     velocity_sigma_m_s: float = setting(1e-6, 'one-sigma noise of the velocity measurement', 1e-9)
-    attitude_aiding: bool = setting(False, 'attitude updates from the joint encoders + mounting states')
-    attitude_sigma_rad: float = setting(1e-4, 'one-sigma noise of the encoder attitude measurement',
-                                   1e-9)
+    attitude_aiding: bool = setting(False,
+                                    'attitude updates from the joint encoders + mounting states')
+    attitude_sigma_rad: float = setting(1e-4,
+                                        'one-sigma noise of the encoder attitude measurement',
+                                        1e-9)
     # --- general chains (issue 15: an arm as the turntable; no effect on a turntable) --------
     chain_joint_offset_sigma_rad: float = setting(
         1e-3, 'one sigma of the chain\'s joint zero offsets (uncalibrated arm: ~1 mrad); bounds '
@@ -66,10 +72,12 @@ class EstimatorConfig:
     # blocks offline differed from the node's 1 s by up to 0.72 sigma, and on a 34 s plan of
     # 3 s flips they diverged or re-aligned in 3 of 3 seeds where 1 s blocks passed; they
     # cost 11-22 % more CPU than 5 s blocks: docs/ESTIMATOR.md)
-    block_chunks: int = setting(10, 'updates per block between feedbacks to the navigator', 1, 1000)
+    block_chunks: int = setting(10, 'updates per block between feedbacks to the navigator', 1,
+                                1000)
     # --- initialisation --------------------------------------------------------------------
     init_window_s: float = setting(2.0, 'stationary window for coarse alignment', 0.1, 600.0)
-    stationary_joint_tolerance_rad: float = setting(1e-4, 'joint travel allowed in the window', 0.0)
+    stationary_joint_tolerance_rad: float = setting(1e-4, 'joint travel allowed in the window',
+                                                    0.0)
     initial_tilt_sigma_rad: float = setting(2e-3, 'prior sigma of the levelled tilt', 1e-9)
     initial_heading_sigma_rad: float = setting(5e-3, 'prior sigma of the fixture heading', 1e-9)
     initial_velocity_sigma_m_s: float = setting(1e-3, 'prior sigma of the initial velocity', 1e-9)

@@ -18,6 +18,7 @@ Savage's MARS symmetric misalignment): with compensated rates ``omega_hat`` and 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -168,7 +169,10 @@ class StateLayout:
         slices = {'psi': slice(0, 3), 'dv': slice(3, 6)}
         scale = [np.full(3, URAD), np.full(3, 1e-6)]
         k = 6
-        gi, gc, ai, ac = [], [], [], []
+        gi: list[int] = []
+        gc: list[int] = []
+        ai: list[int] = []
+        ac: list[int] = []
         for name in ordered:
             _, size, unit, _, side = GROUP_INFO[name]
             slices[name] = slice(k, k + size)
@@ -198,29 +202,29 @@ class StateLayout:
 
 # --- SensorErrors <-> flat parameter vectors ---------------------------------------------
 
-def theta_from_errors(errors: object) -> tuple[FloatArray, FloatArray]:
+def theta_from_errors(errors: Any) -> tuple[FloatArray, FloatArray]:
     """The full gyro (21,) and accel (26,) parameter vectors of a ``SensorErrors``.
 
     The time offset (last accel entry) is not part of ``SensorErrors`` and is returned as 0.
     """
-    kg = np.asarray(errors.gyro_scale_misalignment, float)  # type: ignore[attr-defined]
-    ka = np.asarray(errors.accel_scale_misalignment, float)  # type: ignore[attr-defined]
-    r = np.asarray(errors.size_effect_m, float)  # type: ignore[attr-defined]
+    kg = np.asarray(errors.gyro_scale_misalignment, float)
+    ka = np.asarray(errors.accel_scale_misalignment, float)
+    r = np.asarray(errors.size_effect_m, float)
     tg = np.concatenate([
-        np.asarray(errors.gyro_bias_rad_s, float), np.diag(kg),  # type: ignore[attr-defined]
-        np.asarray(errors.gyro_scale_asymmetry, float),  # type: ignore[attr-defined]
+        np.asarray(errors.gyro_bias_rad_s, float), np.diag(kg),
+        np.asarray(errors.gyro_scale_asymmetry, float),
         [0.5 * (kg[i, j] + kg[j, i]) for i, j in MIS_SYM],
-        np.asarray(errors.gyro_g_sensitivity_rad_s_per_m_s2, float).ravel()])  # type: ignore
+        np.asarray(errors.gyro_g_sensitivity_rad_s_per_m_s2, float).ravel()])
     ta = np.concatenate([
-        np.asarray(errors.accel_bias_m_s2, float), np.diag(ka),  # type: ignore[attr-defined]
-        np.asarray(errors.accel_scale_asymmetry, float),  # type: ignore[attr-defined]
+        np.asarray(errors.accel_bias_m_s2, float), np.diag(ka),
+        np.asarray(errors.accel_scale_asymmetry, float),
         [ka[i, j] for i, j in OFF6],
-        np.asarray(errors.accel_quadratic_per_m_s2, float),  # type: ignore[attr-defined]
+        np.asarray(errors.accel_quadratic_per_m_s2, float),
         [r[i, j] for i, j in OFF6], [0.0]])
     return tg, ta
 
 
-def errors_from_theta(theta_g: FloatArray, theta_a: FloatArray, cls: type) -> object:
+def errors_from_theta(theta_g: FloatArray, theta_a: FloatArray, cls: type) -> Any:
     """Build ``cls`` (``SensorErrors``) from the full parameter vectors (inverse of above)."""
     c = _GYRO_COLS
     kg = np.diag(theta_g[c['gyro_scale']])

@@ -523,7 +523,8 @@ class CalibrationEstimator:
             NDArray[np.bool_], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         """A general chain (issue 15) at the chunk ends ``t_ns``: (covered, q, qd, anchor
         velocity (B, 3), its covariance (B, 3, 3) and the encoder attitude's (B, 3, 3) from
-        the arm's errors and the encoder noise, :func:`.measurements.chain_velocity_covariance`)."""
+        the arm's errors and the encoder noise,
+        :func:`.measurements.chain_velocity_covariance`)."""
         cfg = self.config
         B = len(t_ns)
         n = self.fixture.n_joints

@@ -247,8 +247,9 @@ class RunLedger:
         there the compensation is the same function of the same input, so whatever the
         calibration's error, the difference of the two raw means is white noise plus the
         bias change between them, fitted as ``a + q |t_j - t_i|`` (:func:`.coarse.pair_walk`,
-        the coarse start's fit over all pairs). A Gauss-Markov instability of ~100 s (MEMS) grows over the first pairs
-        and then saturates, which a straight line through all pairs does not show; so also
+        the coarse start's fit over all pairs). A Gauss-Markov instability of ~100 s (MEMS)
+        grows over the first pairs and then saturates, which a straight line through all
+        pairs does not show; so also
         ``q = sum y / sum |t_j - t_i|`` over the pairs at most :data:`WALK_SHORT_S` apart
         (the walk that explains their scatter), counted when ``mean y`` stands out (> 2
         standard errors: a false detection only widens Q a little); the larger of the two.

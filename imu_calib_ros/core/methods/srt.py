@@ -165,7 +165,7 @@ def _detect_rotations(omega: FloatArray, dt: FloatArray, thr_rad_s: float = 0.05
                       ) -> tuple[tuple[str, float], ...]:
     """Split a sequence's gyro data into single-axis rotations (axis, degrees)."""
     moving = np.linalg.norm(omega, axis=1) > thr_rad_s
-    rots = []
+    rots: list[tuple[str, float]] = []
     m = np.concatenate([[False], moving, [False]]).astype(np.int8)
     d = np.diff(m)
     for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
@@ -199,7 +199,7 @@ def find_sequences(stamps_ns: NDArray[np.int64], omega_rad_s: FloatArray,
                    min_rotation_deg: float = 20.0) -> list[SrtSequence]:
     """Pair consecutive stationary windows that have a rotation between them."""
     dt = _dt(stamps_ns)
-    seqs = []
+    seqs: list[SrtSequence] = []
     for k in range(len(windows) - 1):
         w0, w1 = windows[k], windows[k + 1]
         rots = _detect_rotations(omega_rad_s[w0.i1:w1.i0], dt[w0.i1:w1.i0])
@@ -241,7 +241,7 @@ class _Geometry:
         u = self.down(self.seq_window_idx[k][0])
         order = np.argsort(np.abs(u))[:2]
         order.sort()
-        E = []
+        E: list[FloatArray] = []
         for j in order:
             e = np.eye(3)[j] - u * u[j]
             for prev in E:
@@ -434,7 +434,7 @@ def solve(J: FloatArray, y: FloatArray, sigma: FloatArray, rtol: float = 1e-2,
 #: Parameters the SRT never estimates (CONTRACT 3 terms outside its linear model): (label,
 #: SensorErrors field, index, finite-difference step). G's step moves the rate by ~1e-6 rad/s
 #: (as Kg's); qa and r enter the specific force linearly, so their steps are exact.
-CONSIDER: tuple[tuple[str, str, tuple[int, int] | tuple[int], float], ...] = (
+CONSIDER: tuple[tuple[str, str, tuple[int, ...], float], ...] = (
     *((f'G_{a}{b}', 'gyro_g_sensitivity_rad_s_per_m_s2', (i, j), 1e-7)
       for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
     *((f'qa_{a}', 'accel_quadratic_per_m_s2', (i,), 1e-6) for i, a in enumerate(AXES)),
@@ -672,7 +672,7 @@ def _consider_part(sol: LsqResult, J: FloatArray, J_f: FloatArray, prior_sd: Flo
 
 def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None, *,
              iterations: int = 3, initial: Any = None, min_window_s: float = 4.0,
-             window_margin_s: float = 0.5, rtol: float = 1e-2, **_: Any,
+             window_margin_s: float = 0.5, rtol: float = 1e-2, **_ignored: Any,
              ) -> tuple[Any, Any, list[str], dict[str, Any]]:
     """Savage's SRT on a recording: windows, eqs. (1)-(2), linear model, least squares.
 
@@ -703,7 +703,6 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     """
     from ..sensor_model import SensorErrors, compensate
 
-    names = tuple(fixture.joint_names)
     windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s,
                                  margin_s=window_margin_s)
     if len(windows) < 2:

@@ -10,14 +10,15 @@ the corrected stream uses.
 Two modes (parameter ``estimator_mode`` of the node), measured by ``bench/bench_live.py``:
 
 - ``'process'`` (default): a child process (``python -m
-  imu_calib_ros.nodes.estimator_runner``) owns the estimator; only pickled batches of
+  imu_calib_ros.core.estimator.runner``) owns the estimator; only pickled batches of
   samples and snapshots cross its stdin/stdout. The GIL of the node process is never held by the
   filter, so the corrected stream's latency does not see the blocks.
 - ``'thread'``: a daemon thread in the node process (simpler, no pickling); the filter's
   Python code then competes with the callbacks for the GIL.
 
-This module imports neither rclpy nor message packages (the child process does not need
-them); everything here is plain Python over the core.
+Part of the core (issue 14 item 2; it was ``nodes/estimator_runner.py``): it imports neither
+rclpy nor message packages (the child process does not need them), so offline code can run
+the estimator the way the node does.
 """
 from __future__ import annotations
 
@@ -31,8 +32,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..core.errors import ImuCalibError
-from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
+from ..errors import ImuCalibError
+from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 
 #: ``health()`` values meaning the filter diverged (issue 6: windowed NIS, covariance not
 #: positive definite, states out of their physical range).
@@ -80,9 +81,9 @@ def make_estimator(spec: tuple[Any, str, Any]) -> Any:
     """Build a :class:`CalibrationEstimator` from ``(fixture, grade, EstimatorConfig)``; the
     fixture a :class:`~imu_calib_ros.core.fixture.Fixture` (pickled to the child: a URDF
     from robot_description has no file) or a CONTRACT 2 file."""
-    from ..core.estimator import CalibrationEstimator
-    from ..core.fixture import Fixture
-    from ..core.imu_grade import load_grade
+    from ..fixture import Fixture
+    from ..imu_grade import load_grade
+    from .estimator import CalibrationEstimator
     fixture, grade_name, config = spec
     grade = load_grade(grade_name) if grade_name else None
     if not isinstance(fixture, Fixture):
@@ -110,8 +111,8 @@ def reset_navigation(estimator: Any) -> Any:
 def _ledger(estimator: Any) -> Any:
     """The self-check's :class:`~imu_calib_ros.core.estimator.run_ledger.RunLedger` of a
     real estimator (None for the test doubles of other types)."""
-    from ..core.estimator import CalibrationEstimator
-    from ..core.estimator.run_ledger import RunLedger
+    from .estimator import CalibrationEstimator
+    from .run_ledger import RunLedger
     return RunLedger(estimator) if isinstance(estimator, CalibrationEstimator) else None
 
 
@@ -283,7 +284,7 @@ class _Serve:
 
 
 def _child_main() -> None:
-    """Child-process entry (``python -m imu_calib_ros.nodes.estimator_runner``).
+    """Child-process entry (``python -m imu_calib_ros.core.estimator.runner``).
 
     Reads pickled commands from stdin (the first is ``('init', spec, frame_id)``), writes
     pickled snapshots/replies to the original stdout; anything else printed goes to stderr.
@@ -328,19 +329,21 @@ class _ChildProcess:
         import subprocess
         import sys
         self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'imu_calib_ros.nodes.estimator_runner'],
+            [sys.executable, '-m', 'imu_calib_ros.core.estimator.runner'],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
         self.inq: queue.Queue[Any] = queue.Queue(max_batches)
         self.outq: queue.Queue[Any] = queue.Queue()
-        pickle.dump(('init', spec, frame_id), self.proc.stdin)
-        self.proc.stdin.flush()
+        stdin, stdout = self.proc.stdin, self.proc.stdout
+        assert stdin is not None and stdout is not None  # PIPE
+        pickle.dump(('init', spec, frame_id), stdin)
+        stdin.flush()
 
         def write() -> None:
             try:
                 while True:
                     msg = self.inq.get()
-                    pickle.dump(msg, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-                    self.proc.stdin.flush()
+                    pickle.dump(msg, stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                    stdin.flush()
                     if msg[0] == 'stop':
                         return
             except (BrokenPipeError, OSError, ValueError):
@@ -349,7 +352,7 @@ class _ChildProcess:
         def read() -> None:
             try:
                 while True:
-                    msg = pickle.load(self.proc.stdout)
+                    msg = pickle.load(stdout)
                     if msg[0] != 'ready':
                         self.outq.put(msg)
             except (EOFError, OSError, ValueError, pickle.UnpicklingError):
@@ -408,7 +411,8 @@ class EstimatorRunner:
         else:
             self._in = queue.Queue(max_batches)
             self._out = queue.Queue()
-            fac = factory if factory is not None else (lambda: make_estimator(spec))
+            fac = factory if factory is not None else (
+                lambda: make_estimator(spec))  # type: ignore[arg-type] # spec given
             serve = _Serve(fac, frame_id, self._out.put)
 
             def loop() -> None:
@@ -523,6 +527,6 @@ def finite_or_none(x: float) -> float | None:
 
 if __name__ == '__main__':
     # run the copy imported under the package name, so that pickled Snapshots refer to
-    # imu_calib_ros.nodes.estimator_runner.Snapshot, not __main__.Snapshot
-    from imu_calib_ros.nodes.estimator_runner import _child_main as _main
+    # imu_calib_ros.core.estimator.runner.Snapshot, not __main__.Snapshot
+    from imu_calib_ros.core.estimator.runner import _child_main as _main
     _main()

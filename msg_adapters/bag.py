@@ -42,9 +42,9 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ..core.errors import BagError, InputError
-from ..core.reorder import BatchReorder, ReorderStats
-from ..core.types import ImuBatch, ImuSample, JointBatch, JointSample
+from imu_calib_ros.core.errors import BagError, InputError
+from imu_calib_ros.core.reorder import BatchReorder, ReorderStats
+from imu_calib_ros.core.types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import DEFAULT_REORDER_WINDOW_S
 from . import cdr
 from .bag_raw import RawBlock, oneline, raw_windows
@@ -188,6 +188,7 @@ def _decode_imu(store: Any, path: Path, b: RawBlock) -> list[ImuBatch]:
     if ok.size:  # the numpy decode agrees with rosbags on the first message, or is not used
         k = int(ok[0])
         ref = _sample(store, path, b.conn, int(b.clocks[k]), b.raw(k))
+        assert isinstance(ref, ImuSample)
         if not (ref.stamp_ns == cols.stamps_ns[k] and ref.frame_id == cols.frame_ids[
                 cols.frame[k]] and _same_bits(ref.gyro_rad_s, cols.gyro_rad_s[k])
                 and _same_bits(ref.accel_m_s2, cols.accel_m_s2[k])):
@@ -216,7 +217,7 @@ def _decode_joints(store: Any, path: Path, b: RawBlock) -> list[JointBatch]:
     n = len(b.starts)
     group = np.full(n, -1, np.int64)
     rank = np.zeros(n, np.int64)
-    decoded = []
+    decoded: list[Any] = []
     for length in np.unique(b.lengths).tolist():  # messages of one length may share a layout
         sel = np.flatnonzero(b.lengths == length)
         res = cdr.decode_joint_rows(cdr.gather_rows(b.buf, b.starts[sel], length))
@@ -242,8 +243,8 @@ def _decode_joints(store: Any, path: Path, b: RawBlock) -> list[JointBatch]:
             r = slice(int(rank[a]), int(rank[e - 1]) + 1)
             out.append(JointBatch(stamps[r], names, pos[r], None if vel is None else vel[r]))
         else:
-            out += _joint_runs([_sample(store, path, b.conn, int(b.clocks[k]), b.raw(k))
-                                for k in range(a, e)])  # type: ignore[misc]
+            out += _joint_runs([_sample(store, path, b.conn, int(b.clocks[k]),  # type: ignore[misc]
+                                        b.raw(k)) for k in range(a, e)])
     return out
 
 
@@ -364,12 +365,12 @@ def _merge_samples(joints: list[JointBatch], imu: list[ImuBatch]
     for b in joints:
         samples += _samples_of(b)
     if not joints or not imu:
-        for b in imu:
-            samples += _samples_of(b)
+        for bi in imu:
+            samples += _samples_of(bi)
         return iter(samples)
     nj = len(samples)
-    for b in imu:
-        samples += _samples_of(b)
+    for bi in imu:
+        samples += _samples_of(bi)
     kj = np.maximum.accumulate(np.concatenate([b.stamps_ns for b in joints]))
     ki = np.maximum.accumulate(np.concatenate([b.stamps_ns for b in imu]))
     order = np.empty(len(samples), np.int64)  # merged position -> index into samples
@@ -658,7 +659,10 @@ def read_bag(path: str | os.PathLike[str], imu_topic: str = DEFAULT_IMU_TOPIC,
     joint_parts: list[JointBatch] = []
     for b in iter_bag_batches(path, imu_topic, joint_topic, READ_WINDOW_MSGS,
                               reorder_window_s, reorder_stats):
-        (imu_parts if isinstance(b, ImuBatch) else joint_parts).append(b)
+        if isinstance(b, ImuBatch):
+            imu_parts.append(b)
+        else:
+            joint_parts.append(b)
     imu = _concat_imu(imu_parts)
     if joint_topic is None:
         return imu, JointBatch(np.zeros(0, np.int64), (), np.zeros((0, 0)), None)
@@ -814,9 +818,9 @@ def write_bag(path: str | os.PathLike[str], imu: ImuBatch, joints: JointBatch,
         writer = Writer(bagdir, version=9, storage_plugin=plugin)
         writer.open()
         try:
-            c_imu = writer.add_connection(imu_topic, IMU_MSGTYPE, typestore=store) \
+            c_imu: Any = writer.add_connection(imu_topic, IMU_MSGTYPE, typestore=store) \
                 if n_imu else None
-            c_joint = writer.add_connection(joint_topic, JOINT_STATE_MSGTYPE,
+            c_joint: Any = writer.add_connection(joint_topic, JOINT_STATE_MSGTYPE,
                                             typestore=store) if len(joints) else None
             done = 0
             for k in order.tolist():

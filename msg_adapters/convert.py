@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.errors import InputError
-from ..core.types import FloatArray, ImuSample, JointSample
+from imu_calib_ros.core.errors import InputError
+from imu_calib_ros.core.types import FloatArray, ImuSample, JointSample
 from .cdr import NS_PER_S, imu_cdr, imu_fields_from_cdr  # noqa: F401 - the raw-bytes path
 
 STAMP_MIN_NS = -(2 ** 31) * NS_PER_S

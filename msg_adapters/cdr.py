@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..core.errors import InputError
+from imu_calib_ros.core.errors import InputError
 
 NS_PER_S = 1_000_000_000
 CDR_LE = b'\x00\x01\x00\x00'

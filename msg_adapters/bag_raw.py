@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..core.errors import BagError
+from imu_calib_ros.core.errors import BagError
 from . import cdr
 
 IntArray = NDArray[np.int64]
@@ -203,7 +203,8 @@ def _split_blocks(blocks: list[RawBlock], n: int) -> tuple[list[RawBlock], list[
     clocks = np.concatenate([b.clocks for b in blocks])
     starts = np.concatenate([b.starts for b in blocks])
     k = np.lexsort((starts, clocks))[n - 1]
-    head, tail = [], []
+    head: list[RawBlock] = []
+    tail: list[RawBlock] = []
     for b in blocks:
         m = int(np.count_nonzero(
             (b.clocks < clocks[k]) | ((b.clocks == clocks[k]) & (b.starts <= starts[k]))))
