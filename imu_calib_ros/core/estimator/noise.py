@@ -33,8 +33,9 @@ _LOG = logging.getLogger('imu_calib_ros.estimator')
 # (passed 26/32, 6/1440 beyond 3 sigma), 0.022 passed 30/32 with 8/1440 and 0.015 31/32 with
 # 10/1440 against 3.9 for an honest filter: 0.022 is the lowest that stays honest. A
 # navigation gyro's is ~1e-4 and this floor would cost its bias accuracy), accelerometer
-# 0.035 for MEMS (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035; consumer parts 0.014-0.09: with 0.015 a world consumer unit's 80 ug over 100 s
-# left its accelerometer biases 4-4.7 sigma off) and ACCEL_BIAS_WALK 0.015 for every other
+# 0.035 for MEMS (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035; consumer parts
+# 0.014-0.09: with 0.015 a world consumer unit's 80 ug over 100 s left its accelerometer
+# biases 4-4.7 sigma off) and ACCEL_BIAS_WALK 0.015 for every other
 # class (a navigation unit's 2-5 ug over an hour at 5-20 ug/sqrt(Hz) is 0.002-0.024: a drift
 # the stationary windows cannot resolve, but that left a 0.6 ug sigma 5 sigma off on a
 # 30-min world run).
