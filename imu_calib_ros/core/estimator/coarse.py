@@ -203,7 +203,8 @@ def white_noise_density(x: FloatArray, dt_s: float) -> float:
                                               taus=taus)
         avar = np.asarray(adev, float) ** 2
         k = np.searchsorted(taus, np.asarray(t_used, float) - 1e-12 * dt_s)
-        if len(avar) < 2 or not np.all(np.isfinite(avar)):
+        if len(avar) < 2 or not np.all(np.isfinite(avar)) or np.any(avar <= 0.0):
+            # too short to fit, or a noise-free (synthetic, constant) record: the first point
             out.append(float(adev[0]) * math.sqrt(dt_s))
             continue
         # a point's relative spread ~ sqrt(m / n): weight each by avar / that
