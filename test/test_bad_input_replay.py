@@ -176,7 +176,9 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
     """A gyro that jumps by 2e-3 rad/s mid-run (40,000 prior sigmas of the nav grade) makes
     the filter diverge; replay must say so and write nothing (issue 6). Issue 11: the filter
     now re-aligns instead of aborting; it may then finish, but only with the bias it ends at
-    inside its sigma and the re-alignments in the file (never a silent wrong value)."""
+    inside its sigma and the re-alignments in the file (never a silent wrong value). Since the
+    gate de-weights instead of dropping (session 6) it may ride the jump without re-aligning;
+    the updates gated on the way then fail the self-check, which counts them."""
     from msg_adapters.bag import read_bag, write_bag
     imu, joints = read_bag(bags / 'moving' / 'bag.mcap')
     t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
@@ -189,7 +191,7 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
         # diverged for good, or recovered by re-alignments/restarts: the run's own evidence
         # then fails its self-check (issue 17), which names it
         check_failed(rc, err, out)
-        assert 'diverged' in err or 're-aligned' in err or 'restarted' in err, err
+        assert any(w in err for w in ('diverged', 're-aligned', 'restarted', 'gated')), err
         return
     from imu_calib_ros.core.calibration import CalibrationResult
     calib = CalibrationResult.load(out)

@@ -56,8 +56,8 @@ def test_white_noise_alone_is_unbiased(seed: int) -> None:
 
 def test_noise_free_record_reads_zero_without_warnings() -> None:
     """A synthetic constant record (the node tests stream exact values): Allan variance 0 at
-    every tau, which weighted the fit by 1/0; the density is 0 (to rounding) and no NaN reaches the filter
-    (it did: the live node then never started, 'nothing to save')."""
+    every tau, which weighted the fit by 1/0; the density is 0 (to rounding) and no NaN
+    reaches the filter (it did: the live node then never started, 'nothing to save')."""
     w = np.tile([1e-5, -2e-5, 7.292e-5], (600, 1))
     with np.errstate(all='raise'):
         got = white_noise_density(w, 0.005)

@@ -32,12 +32,14 @@ def test_health_values_hide_copies_zeros_and_reprs() -> None:
               'flagged': {'gap': 1, 'long_gap': 0}, 'accepted': {'zupt': 5},
               'gate_accepted': {'zupt': 5}, 'gate_rejected': {'zupt': 0},
               'mean_nis': {'zupt': math.nan}, 'running': False, 'status': 'WARN',
-              'divergence_reason': '', 'dropped_groups': [], 'last_good': good}
+              'divergence_reason': '', 'dropped_groups': [], 'last_good': good,
+              'stopped_for_s': 0.0, 'covariance_asymmetry': 0.0, 'processed_s': 1.5}
     values = health_values(health)
     assert values == {
         'estimator.imu_samples': '100', 'estimator.flagged.gap': '1',
         'estimator.gate_accepted.zupt': '5', 'estimator.mean_nis.zupt': 'not finite',
         'estimator.running': 'False', 'estimator.status': 'WARN',
+        'estimator.processed_s': '1.5',
         'estimator.last_good.gyro_bias_deg_h': '1, 2, -3',
         'estimator.last_good.gyro_scale_ppm': '0, 0, 0',
         'estimator.last_good.accel_bias_ug': '10, 0, -5',

@@ -93,6 +93,51 @@ def test_update_gate_and_non_positive_s_are_rejected() -> None:
     assert np.array_equal(filt.P, P_before)
 
 
+def test_gated_innovation_is_deweighted_to_the_gate() -> None:
+    """gate_action deweight (Chang 2014): an innovation beyond the gate is counted as gated
+    and used with R scaled by the lam >= 1 that brings its NIS to the gate exactly; the step
+    is the Kalman step of that inflated R (filterpy's update with lam R), bounded by the
+    gate, and it falls off for a gross outlier (as 1/|y|)."""
+    from scipy.stats import chi2
+    from imu_calib_ros.core.estimator.ekf import deweight_factor
+    rng = np.random.default_rng(5)
+    lay = em.StateLayout.build(ALL)
+    n = lay.n
+    P0 = _spd(rng, n)
+    H = np.zeros((3, n))
+    H[:, 0:3] = np.eye(3)
+    H[:, 3:6] = 0.1 * rng.normal(size=(3, 3))
+    R = np.diag([0.3, 0.5, 0.8])
+    gate = float(chi2.ppf(0.99, 3))
+    S = H @ P0 @ H.T + R
+    L = np.linalg.cholesky(S)
+    steps = []
+    for k in (2.0, 20.0, 2000.0):  # NIS = k^2 x gate / 1
+        y = L @ np.array([1.0, -0.5, 0.3]) * k * np.sqrt(gate / 1.34)
+        filt = ErrorStateFilter(lay, P0.copy(), 0.99, deweight=True)
+        assert not filt.update('velocity', y, H, R)  # counted as gated
+        assert filt.counters.rejected['velocity'] == 1
+        assert filt.counters.deweighted['velocity'] == 1
+        assert 'velocity' not in filt.counters.nis_sum  # the NIS statistics: gated apart
+        lam = deweight_factor(H @ P0 @ H.T, R, y, gate)
+        assert lam > 1.0
+        nis_lam = float(y @ np.linalg.solve(H @ P0 @ H.T + lam * R, y))
+        assert nis_lam == pytest.approx(gate, rel=1e-8)
+        x_ref, P_ref = kf_update(np.zeros(n), P0.copy(), y, lam * R, H)
+        np.testing.assert_allclose(filt.x, x_ref, rtol=0, atol=1e-10 * np.abs(x_ref).max())
+        np.testing.assert_allclose(filt.P, P_ref, rtol=0, atol=1e-10 * np.abs(P_ref).max())
+        steps.append(float(np.linalg.norm(filt.x)))
+    assert steps[2] < 0.1 * steps[1]  # a gross outlier moves the state by almost nothing
+    # reject: the state and P untouched, as before
+    filt = ErrorStateFilter(lay, P0.copy(), 0.99, deweight=False)
+    assert not filt.update('velocity', 3.0 * L @ np.ones(3) * np.sqrt(gate), H, R)
+    assert not filt.x.any() and np.array_equal(filt.P, P0)
+    # within the gate: the plain update (lam not used)
+    filt = ErrorStateFilter(lay, P0.copy(), 0.99, deweight=True)
+    assert filt.update('velocity', L @ np.array([0.5, 0.2, 0.1]), H, R)
+    assert 'velocity' not in filt.counters.deweighted
+
+
 def test_transition_rows_are_the_rows_of_the_full_matrix() -> None:
     rng = np.random.default_rng(4)
     lay = em.StateLayout.build(ALL)

@@ -56,8 +56,8 @@ def _rows(value: Any) -> list[list[float]]:
 
 def health_values(health: Mapping[str, Any], prefix: str = 'estimator.') -> dict[str, str]:
     """``health()`` flattened into ``{key: text}``: nested mappings as dotted keys, lists
-    joined, floats with 6 digits; zero counters (integers), empty texts and empty lists left
-    out; the keys of :data:`HIDDEN_HEALTH_KEYS` (top level) left out, ``last_good`` as
+    joined, floats with 6 digits; zeros (counters and readings), empty texts and empty lists
+    left out; the keys of :data:`HIDDEN_HEALTH_KEYS` (top level) left out, ``last_good`` as
     :func:`last_good_values`."""
     out: dict[str, str] = {}
     for k, v in health.items():
@@ -78,7 +78,8 @@ def _add(out: dict[str, str], key: str, v: Any) -> None:
         if v:
             out[key] = str(v)
     elif isinstance(v, float):
-        out[key] = number_text(v)
+        if v != 0.0:  # a zero reading (stopped_for_s of a running filter) like a zero counter
+            out[key] = number_text(v)
     elif isinstance(v, (list, tuple)):
         if v:
             out[key] = ', '.join(number_text(x) if isinstance(x, float) else str(x) for x in v)

@@ -66,8 +66,12 @@ class EstimatorConfig:
     chain_error_correlation: float = setting(
         50.0, 'updates over which one arm error stays the same (its bound per update is '
         'multiplied by the square root of this: a systematic error is not averaged away)', 1.0)
-    gate_probability: float = setting(0.99999, 'chi-square gate: reject innovations beyond this '
-                                 'quantile (1 disables the gate)', 0.5, 1.0)
+    gate_probability: float = setting(0.99999, 'chi-square gate: innovations beyond this '
+                                 'quantile count as gated (1 disables the gate)', 0.5, 1.0)
+    gate_action: Literal['deweight', 'reject'] = setting(
+        'deweight', "a gated innovation: 'deweight' uses it with R inflated until its NIS meets "
+        "the gate (Chang 2014: a bounded step, almost none for a gross outlier), 'reject' "
+        'drops it (one marginal innovation could start a cascade of gated updates)')
     # 1 s blocks (10 updates), live and offline alike (issue 16 item 10: one computation; 5 s
     # blocks offline differed from the node's 1 s by up to 0.72 sigma, and on a 34 s plan of
     # 3 s flips they diverged or re-aligned in 3 of 3 seeds where 1 s blocks passed; they

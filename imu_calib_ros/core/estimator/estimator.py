@@ -735,7 +735,7 @@ class CalibrationEstimator:
         cfg = self.config
         self._filter = ErrorStateFilter(self.layout,
                                         initial_covariance(self.layout, self._prior, cfg),
-                                        cfg.gate_probability)
+                                        cfg.gate_probability, cfg.gate_action == 'deweight')
         self._process_noise.start(self.layout, bias_random_walk(
             self.grade, self.start, cfg.aiding_gyro_noise_rad_s_rt_hz))
         if not self._run_counters:
