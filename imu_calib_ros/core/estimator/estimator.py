@@ -49,7 +49,7 @@ from ..input_guard import GuardConfig, InputGuard
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
-from .alignment import align, initial_covariance, still_run
+from .alignment import align, initial_covariance, level_coupling, still_run
 from .bootstrap import Bootstrap
 from .buffers import ImuBuffer, JointBuffer, point_to_mean
 from .coarse import CoarseStart, implausible
@@ -159,6 +159,7 @@ class CalibrationEstimator:
         self._last_good_cache: tuple[int, Any] | None = None
         self._nis = NisWindow(gcfg.nis_window)
         self._kept_cal_P: FloatArray | None = None  # calibration block of P while re-aligning
+        self._level_M: FloatArray | None = None  # the alignment's tilt coupling, to apply once
         # the gate counters of every filter of the run (a new filter at every (re-)alignment,
         # restart and re-initialisation), for the whole-run NIS (self-check, covariance scale)
         self._run_counters: list[Any] = []
@@ -403,6 +404,12 @@ class CalibrationEstimator:
             if not self._try_initialise():
                 return
             self._restore_calibration_covariance()
+            if self._level_M is not None and self._filter is not None:
+                # the tilt the levelling left carries the accelerometer errors (P0 or the
+                # kept calibration block): alignment.level_coupling
+                M = self._level_M
+                self._filter.P = M @ self._filter.P @ M.T
+                self._level_M = None
         chunks = self.counters['chunks']
         self._process()
         if self.counters['chunks'] != chunks:
@@ -676,6 +683,10 @@ class CalibrationEstimator:
             self._unsettled = False
         self._nav = Strapdown(self.fixture.site, al.R_enu_imu)
         self._start_filter()
+        self._level_M = (level_coupling(self.layout, al.R_enu_imu, self._errors, al.gyro_rad_s,
+                                        al.accel_m_s2, al.nominal_dt_s,
+                                        self.fixture.site.omega_ie_enu)
+                         if cfg.level_coupling else None)
         self._running = True
         self._t0_ns = int(t[0])
         self._prev = None
