@@ -69,8 +69,9 @@ class EstimatorConfig:
     gate_probability: float = setting(0.99999, 'chi-square gate: innovations beyond this '
                                  'quantile count as gated (1 disables the gate)', 0.5, 1.0)
     level_coupling: bool = setting(
-        True, 'P0 correlates the levelled tilt with the accelerometer errors (the tilt is what '
-        'cancels them at the first pose: alignment.level_coupling); off: tilt independent')
+        False, 'P0 correlates the levelled tilt with the accelerometer errors (the tilt is what '
+        'cancels them at the first pose: alignment.level_coupling); off (default, docs/'
+        'ESTIMATOR.md "Init"): tilt independent')
     gate_action: Literal['deweight', 'reject'] = setting(
         'deweight', "a gated innovation: 'deweight' uses it with R inflated until its NIS meets "
         "the gate (Chang 2014: a bounded step, almost none for a gross outlier), 'reject' "
