@@ -171,3 +171,73 @@ def test_replay_summary_is_the_param_table() -> None:
     from imu_calib_ros.core.sensor_model import SensorErrors
     res = CalibrationResult.exact(SensorErrors.zeros())
     assert _summary(res) == format_text(res)
+
+
+def _with_checks(calib, checks, summary, health=None, passed=True):
+    from imu_calib_ros.core.estimator.selfcheck import with_verdict
+    extra = dict(calib.extra)
+    extra.pop('provenance')
+    if health is not None:
+        extra['estimator'] = {**extra['estimator'],
+                              'health': {**extra['estimator']['health'], **health}}
+    return dataclasses.replace(calib, extra=with_verdict(
+        extra, {'passed': passed, 'summary': summary, 'checks': checks}))
+
+
+def test_verdict_says_each_thing_once_and_reads_a_low_nis_as_pessimistic(ekf) -> None:
+    """The headline does not repeat "self-check passed"; an attitude NIS far below its band
+    passes the (upper-tail) check but is not called consistent; guard rejections the file
+    does not split by reason are still counted, never read as "none"."""
+    from imu_calib_ros.report.builder import verdict_html
+    calib, _, _ = ekf
+    checks = {'nis.velocity': {'passed': True, 'value': 1.04, 'limit': 1.5,
+                               'text': 'velocity NIS per dof 1.04 over 1795 updates'},
+              'nis.attitude': {'passed': True, 'value': 0.188, 'limit': 1.5,
+                               'text': 'attitude NIS per dof 0.188 over 1795 updates (below '
+                                       'its band: pessimistic noise)'}}
+    res = _with_checks(calib, checks, 'self-check passed (2 checks, false-alarm rate 1 %)',
+                       {'rejected_total': 7, 'imu_non_finite': 2})
+    text = _text(verdict_html(res, None))
+    assert 'Verdict: self-check PASSED (2 checks, false-alarm rate 1 %)' in text
+    assert text.lower().count('self-check passed') == 1
+    assert 'velocity NIS per dof 1.04 (bound 1.5): consistent' in text
+    assert 'attitude NIS per dof 0.188 (bound 1.5): below its 99 % band' in text
+    assert 'imu_non_finite 2' in text and 'not split in the file) 5' in text
+    assert 'rejected or lost input: none' not in text
+    failed = _with_checks(calib, {}, 'self-check failed: velocity NIS per dof 3.2',
+                          passed=False)
+    text = _text(verdict_html(failed, None))
+    assert 'Verdict: self-check FAILED: velocity NIS per dof 3.2' in text
+    assert text.lower().count('self-check') == 1
+
+
+def test_methods_table_names_the_ekf_column(ekf) -> None:
+    from imu_calib_ros.report import build_report
+    calib, truth, _ = ekf
+    page = build_report(calib, truth, [('old', calib)])
+    table = page.split('<h2>Methods side by side')[1]
+    assert '<th>ekf</th>' in table and '<th>old</th>' in table
+    assert 'this calibration' not in table
+
+
+def test_convergence_panels_are_about_the_final_value(ekf, monkeypatch) -> None:
+    """Entries of one group differ by far more than their sigmas (a MEMS Kg: thousands of
+    ppm, sigma 20): each line is the estimate minus its final value, so every band is
+    visible on one axis, the final value in the legend."""
+    from imu_calib_ros.core.param_table import fmt
+    from imu_calib_ros.report import builder
+    calib, _, _ = ekf
+    figs = []
+    monkeypatch.setattr(builder, '_png', lambda fig: figs.append(fig) or 'img')
+    assert builder.convergence_plot(calib.extra) == 'img'
+    kg = calib.errors.gyro_scale_misalignment
+    axes = {a.get_title(): a for a in figs[0].axes if a.get_title()}
+    ax = axes['gyro_scale minus its final value [ppm]']
+    lines = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 2]
+    assert len(lines) == 3
+    for ln in lines:
+        assert ln.get_ydata()[-1] == pytest.approx(0.0, abs=1e-9)
+    lo, hi = ax.get_ylim()
+    assert lo == pytest.approx(-hi) and hi < 100  # +-6 final sigmas (~0.3 ppm), not 50 ppm
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels[0] == f'x {fmt(kg[0][0] * 1e6, 3)}'  # the final value, ppm

@@ -198,30 +198,38 @@ def convergence_plot(extra: dict[str, Any], truth_values: dict[str, float] | Non
     ncol = 3
     nrow = (len(groups) + ncol - 1) // ncol
     fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.6 * nrow), squeeze=False)
+    from ..core.param_table import fmt
     for k, (g, cols, si, unit) in enumerate(groups):
         ax = axes[k // ncol][k % ncol]
         for c_i, c in enumerate(cols):
             color = f'C{c_i % 10}'
-            ax.plot(t, v[:, c] / si, color=color, lw=1, label=_element(g, c_i))
-            ax.fill_between(t, (v[:, c] - 3 * s[:, c]) / si, (v[:, c] + 3 * s[:, c]) / si,
-                            color=color, alpha=0.15, lw=0)
+            # each entry about its own final value: the entries of a group differ by far
+            # more than their sigmas (a MEMS Kg: 5560 and -2045 ppm, sigma 20), so on one
+            # absolute axis the bands vanish; the final value is in the legend
+            end = v[-1, c]
+            ax.plot(t, (v[:, c] - end) / si, color=color, lw=1,
+                    label=f'{_element(g, c_i)} {fmt(float(end / si), 3)}')
+            ax.fill_between(t, (v[:, c] - end - 3 * s[:, c]) / si,
+                            (v[:, c] - end + 3 * s[:, c]) / si, color=color, alpha=0.15, lw=0)
             if truth_values and h['names'][c] in truth_values:
-                ax.axhline(truth_values[h['names'][c]] / si, color=color, ls='--', lw=0.8)
+                ax.axhline((truth_values[h['names'][c]] - end) / si, color=color, ls='--',
+                           lw=0.8)
         # the final 3-sigma bands set the scale; the prior's would flatten the end
-        lo = np.min((v[-1, cols] - 6 * s[-1, cols]) / si)
-        hi = np.max((v[-1, cols] + 6 * s[-1, cols]) / si)
-        if np.isfinite(lo) and hi > lo:
-            ax.set_ylim(lo, hi)
-        ax.set_title(f'{g} [{UNIT_NAMES.get(unit, unit)}]', fontsize=9)
+        hi = 6 * np.max(s[-1, cols]) / si
+        if np.isfinite(hi) and hi > 0:
+            ax.set_ylim(-hi, hi)
+        ax.axhline(0.0, color='k', lw=0.4)
+        ax.set_title(f'{g} minus its final value [{UNIT_NAMES.get(unit, unit)}]', fontsize=9)
         ax.tick_params(labelsize=7)
         if len(cols) <= 9:
-            ax.legend(fontsize=6, ncol=min(len(cols), 9), loc='upper right')
+            ax.legend(fontsize=6, ncol=3, loc='upper right', framealpha=0.6)
     for k in range(len(groups), nrow * ncol):
         axes[k // ncol][k % ncol].axis('off')
     for a in axes[-1]:
         a.set_xlabel('t [s] from the alignment', fontsize=8)
-    fig.suptitle('estimate and 3-sigma band against time (dashed: truth); y range: final '
-                 'value +- 6 sigma', fontsize=10)
+    fig.suptitle('estimate minus its final value (legend: the final value) with its 3-sigma '
+                 'band against time; dashed: truth minus the final value; y range +- 6 final '
+                 'sigmas', fontsize=10)
     fig.tight_layout()
     return _png(fig)
 
@@ -454,6 +462,18 @@ CHECK_NAMES = {
 }
 
 
+def _summary_tail(summary: str) -> str:
+    """The self-check summary after the headline's own "self-check PASSED/FAILED": its
+    repeated opening ("self-check passed", "self-check failed:") dropped."""
+    for lead in ('self-check passed', 'self-check failed'):
+        if summary.lower().startswith(lead):
+            summary = summary[len(lead):].lstrip(': ')
+            break
+    if not summary:
+        return ''
+    return f' {summary}' if summary.startswith('(') else f': {summary}'
+
+
 def verdict_html(calib: Any, truth: Any | None) -> str:
     """The verdict block: self-check, health, NIS, divergence and restarts, rejected input,
     and with a truth the count within 3 sigma."""
@@ -465,15 +485,20 @@ def verdict_html(calib: Any, truth: Any | None) -> str:
         ok = bool(v.get('passed'))
         word = 'PASSED' if ok else ('FAILED (written with --force)' if v.get('forced')
                                     else 'FAILED')
-        head = (f'<p class="verdict {"ok" if ok else "bad"}">Verdict: self-check {word}: '
-                f'{_esc(v.get("summary", ""))}</p>')
+        head = (f'<p class="verdict {"ok" if ok else "bad"}">Verdict: self-check {word}'
+                f'{_esc(_summary_tail(str(v.get("summary", ""))))}</p>')
         checks = v.get('checks') or {}
         for name in ('nis.velocity', 'nis.attitude'):
             c = checks.get(name)
             if c:
+                # the check bounds the upper tail; far below its band the stated noise is
+                # pessimistic (the selfcheck's text says so): not "consistent"
+                low = 'below its band' in str(c.get('text', ''))
+                reading = ('TOO LARGE' if not c['passed'] else
+                           'below its 99 % band: the stated measurement noise is '
+                           'pessimistic' if low else 'consistent')
                 items.append(f'{name.split(".")[1]} NIS per dof {c["value"]:.3g} '
-                             f'(bound {c["limit"]:.3g}): '
-                             f'{"consistent" if c["passed"] else "TOO LARGE"}')
+                             f'(bound {c["limit"]:.3g}): {reading}')
         for name, what in (('restarts', 'divergence restarts'),
                            ('realignments', 're-alignments')):
             c = checks.get(name)
@@ -501,6 +526,14 @@ def verdict_html(calib: Any, truth: Any | None) -> str:
                                           'joint_missing_names', 'imu_dropped_at_gap',
                                           'gaps', 'gaps_reinitialised')
                    if health.get(k)}
+        # the file keeps the guard's total but splits only these reasons; say the rest
+        other = int(health.get('rejected_total', 0)) - sum(
+            int(health.get(k, 0)) for k in ('imu_out_of_order', 'imu_non_finite',
+                                            'joint_out_of_order', 'joint_non_finite',
+                                            'joint_missing_names'))
+        if other > 0:
+            reasons['other input-guard rejections (frame_id, all_zero, saturated, '
+                    'accel_magnitude, units, after a divergence; not split in the file)'] = other
         items.append('rejected or lost input: ' + (', '.join(f'{k} {n}' for k, n in
                                                             reasons.items()) or 'none')
                      + f' (of {health.get("imu_samples", "?")} IMU samples)')
@@ -603,11 +636,12 @@ STYLE = ('<style>body{font-family:sans-serif;max-width:1250px;margin:auto;paddin
 
 #: what a reader learns from each section (printed under its plot)
 READING = {
-    'convergence': 'Each panel is one group of states: the line is the estimate, the band its '
-                   '3-sigma interval. A band that narrows when the plan excites the parameter '
-                   'and an estimate that stays inside its later bands is a filter that learned '
-                   'from the data; a band that never narrows marks a parameter this plan does '
-                   'not determine.',
+    'convergence': 'Each panel is one group of states: the line is the estimate minus its '
+                   'final value (in the legend), the band its 3-sigma interval, the dashed '
+                   'line (with --truth) where the truth lies. A band that narrows when the '
+                   'plan excites the parameter and an estimate that stays inside its later '
+                   'bands is a filter that learned from the data; a band that never narrows '
+                   'marks a parameter this plan does not determine.',
     'sigma': 'Sigma over its initial value, per state: the steps show which part of the plan '
              'determined which parameter; states still near 1 were not observable.',
     'nis': 'The normalised innovation squared per interval against its 99 % band: points '
@@ -656,8 +690,9 @@ def build_report(calib: Any, truth: Any | None = None,
         from .bag_facts import BagFacts
         bag = BagFacts('', '', 0.0, 0, 0.0, (), np.zeros(0), np.zeros((0, 0)), [],
                        nav={'this calibration': nav_velocity})
-    name = str(calib.extra.get('method', 'this calibration'))
     ex = calib.extra
+    # an EKF file names no method (the header says ekf from its estimator key): the same here
+    name = str(ex.get('method') or ('ekf' if ex.get('estimator') else 'this calibration'))
     parts = [f'<h1>{_esc(title)}</h1>',
              header_html(calib, calib_path, fixture, bag if bag and bag.path else None,
                          generated),
