@@ -24,52 +24,35 @@ from typing import Any
 
 import numpy as np
 
-from .core.sensor_model import KEY_OF_FIELD as CONTRACT_KEY
-from .core.units import DEG_H_RAD_S as DEG_H, G0_M_S2 as G0, URAD
-
-#: (label, SensorErrors field, flat indices, unit name, SI value per unit)
-ROWS: list[tuple[str, str, list[int], str, float]] = [
-    ('gyro bias', 'gyro_bias_rad_s', [0, 1, 2], 'deg/h', DEG_H),
-    ('gyro scale', 'gyro_scale_misalignment', [0, 4, 8], 'ppm', 1e-6),
-    ('gyro misalign yz,xz,xy', 'gyro_scale_misalignment', [5, 2, 1], 'urad', URAD),
-    ('gyro asymmetry', 'gyro_scale_asymmetry', [0, 1, 2], 'ppm', 1e-6),
-    ('gyro g-sens row x', 'gyro_g_sensitivity_rad_s_per_m_s2', [0, 1, 2], 'deg/h/g', DEG_H / G0),
-    ('gyro g-sens row y', 'gyro_g_sensitivity_rad_s_per_m_s2', [3, 4, 5], 'deg/h/g', DEG_H / G0),
-    ('gyro g-sens row z', 'gyro_g_sensitivity_rad_s_per_m_s2', [6, 7, 8], 'deg/h/g', DEG_H / G0),
-    ('accel bias', 'accel_bias_m_s2', [0, 1, 2], 'ug', 1e-6 * G0),
-    ('accel scale', 'accel_scale_misalignment', [0, 4, 8], 'ppm', 1e-6),
-    ('accel misalign yz,xz,xy', 'accel_scale_misalignment', [5, 2, 1], 'urad', URAD),
-    ('accel misalign zy,zx,yx', 'accel_scale_misalignment', [7, 6, 3], 'urad', URAD),
-    ('accel asymmetry', 'accel_scale_asymmetry', [0, 1, 2], 'ppm', 1e-6),
-    ('accel quadratic', 'accel_quadratic_per_m_s2', [0, 1, 2], 'ug/g^2', 1e-6 / G0),
-    ('size effect xy,xz,yx', 'size_effect_m', [1, 2, 3], 'mm', 1e-3),
-    ('size effect yz,zx,zy', 'size_effect_m', [5, 6, 7], 'mm', 1e-3),
-]
-
-
-
 
 def comparison_table(estimate: Any, truth: Any) -> tuple[str, int, int]:
-    """Estimate vs truth in engineering units; returns (text, #within 3 sigma, #compared)."""
-    lines = [f'{"parameter":<26}{"unit":<9}{"truth":>33}{"estimate":>33}{"sigma":>27}'
-             f'{"err/sigma":>22}']
+    """Estimate vs truth in engineering units, one row per parameter entry, laid out by
+    :mod:`imu_calib_ros.core.param_table` (the blocks, units and fixed marks of the
+    ``replay`` summary and the report); returns (text, #within 3 sigma, #compared)."""
+    from .core.param_table import blocks, fmt, folded_line
+    tb = {b.key: b for b in blocks(estimate, truth.tracked_truth())}  # the filter tracks
+    lines = [f'{"parameter":<18}{"unit":>8}{"truth":>12}{"estimate":>12}{"sigma":>10}'
+             f'{"err/sigma":>11}']
     within = total = 0
-    fixed = set(getattr(estimate, 'fixed', ()))
-    tracked = truth.tracked_truth()  # the filter tracks the total bias
-    for label, attr, idx, unit, scale in ROWS:
-        est = np.asarray(getattr(estimate.errors, attr), float).ravel()[idx] / scale
-        sig = np.asarray(getattr(estimate.sigma, attr), float).ravel()[idx] / scale
-        tru = np.asarray(getattr(tracked, attr), float).ravel()[idx] / scale
-        is_fixed = CONTRACT_KEY[attr] in fixed
-        ratio = np.where(sig > 0, (est - tru) / np.where(sig > 0, sig, 1), np.nan)
-        if not is_fixed:
-            ok = np.abs(ratio) <= 3
-            within += int(np.sum(ok))
-            total += int(np.sum(np.isfinite(ratio)))
-        def fmt(v: Any, w: int = 11, spec: str = '.3g') -> str:  # noqa: E306 - tiny local
-            return ''.join(f' {x:>{w - 1}{spec}}' for x in v)   # one space: never run together
-        lines.append(f'{label:<26}{unit:<9}{fmt(tru)}{fmt(est)}{fmt(sig, 9)}'
-                     f'{fmt(ratio, 7, ".2f") if not is_fixed else "   (fixed)":>22}')
+    bl = blocks(estimate)
+    for b in bl:
+        if b.folded:
+            continue
+        for idx in b.entries():
+            v, s, tv = (float(x[idx]) for x in (b.value, b.sigma, tb[b.key].value))
+            if b.fixed[idx]:
+                z_txt = 'fixed'
+            else:
+                z = (v - tv) / s if s > 0 else float('nan')
+                if np.isfinite(z):
+                    total += 1
+                    within += int(abs(z) <= 3)
+                z_txt = f'{z:+.2f}'
+            lines.append(f'{b.label + "[" + b.name_of(idx) + "]":<18}{str(b.units[idx]):>8}'
+                         f'{fmt(tv):>12}{fmt(v):>12}{fmt(s, 2):>10}{z_txt:>11}')
+    folded = [b for b in bl if b.folded]
+    if folded:
+        lines.append(folded_line(folded))
     if truth.extra.get('bias_at_end'):
         lines.append('(bias truth: the turn-on value plus the simulated in-run drift at the end '
                      'of the plan, which is what the filter tracks)')

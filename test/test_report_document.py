@@ -303,3 +303,21 @@ def test_full_report_rendered_in_chromium_has_every_section(ekf, tmp_path) -> No
     assert img.shape[:2] == (6000, 1366)
     coloured = (img.max(axis=2) - img.min(axis=2) > 0.2).sum()
     assert coloured > 50000, coloured  # the plots drew (not broken images)
+
+
+def test_demo_table_is_laid_out_by_the_param_blocks(ekf) -> None:
+    """The demo's estimate-vs-truth table uses the blocks of the replay summary and the
+    report: the same labels and per-entry units, fixed entries never scored, and the
+    report's count within 3 sigma."""
+    from imu_calib_ros.demo import comparison_table
+    from imu_calib_ros.report.builder import within_3_sigma
+    calib, truth, _ = ekf
+    text, within, total = comparison_table(calib, truth)
+    kg = [line for line in text.splitlines() if line.startswith('gyro Kg[')]
+    assert [line.split()[2] for line in kg] == ['ppm', 'urad', 'urad', 'ppm', 'urad', 'ppm']
+    assert (within, total) == within_3_sigma(calib, truth)
+    held = dataclasses.replace(calib, fixed=('accelerometer.quadratic',))
+    text, within, total_held = comparison_table(held, truth)
+    quad = [line for line in text.splitlines() if line.startswith('accel quad[')]
+    assert len(quad) == 3 and all(line.endswith('fixed') for line in quad)
+    assert total_held == total - 3
