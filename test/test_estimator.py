@@ -222,6 +222,13 @@ def test_bad_samples_are_counted_not_used() -> None:
     c = est.counters
     assert c['imu_non_finite'] == 1 and c['imu_out_of_order'] == 1
     assert c['joint_missing_names'] == 1
+    # the calibration file keeps the guard's split by reason (the report's verdict names it)
+    from imu_calib_ros.core.estimator.result import estimator_extra
+    h = est.health()
+    extra = estimator_extra(est.estimate_state(), np.ones(est.layout.n - 6), est.layout, h)
+    kept = extra['health']['rejected']
+    assert kept == {k: v for k, v in h['rejected'].items() if v}
+    assert kept.get('non_finite') == 1 and sum(kept.values()) == h['rejected_total']
 
 
 def test_shipped_config_files_match_the_dataclass() -> None:

@@ -211,6 +211,20 @@ def test_verdict_says_each_thing_once_and_reads_a_low_nis_as_pessimistic(ekf) ->
     assert text.lower().count('self-check') == 1
 
 
+def test_verdict_names_each_rejection_reason_the_file_keeps(ekf) -> None:
+    """Files since session 6 keep the input guard's split (estimator.health.rejected): the
+    verdict names each reason with its count and nothing is left 'not split'."""
+    from imu_calib_ros.report.builder import verdict_html
+    calib, _, _ = ekf
+    res = _with_checks(calib, {}, 'self-check passed (0 checks, false-alarm rate 1 %)',
+                       {'rejected_total': 7, 'imu_non_finite': 2,
+                        'rejected': {'non_finite': 2, 'frame_id': 4, 'saturated': 1}})
+    text = _text(verdict_html(res, None))
+    assert 'rejected for frame_id 4' in text and 'rejected for saturated 1' in text
+    assert 'rejected for non_finite 2' in text
+    assert 'not split' not in text and 'imu_non_finite' not in text  # counted once
+
+
 def test_methods_table_names_the_ekf_column(ekf) -> None:
     from imu_calib_ros.report import build_report
     calib, truth, _ = ekf

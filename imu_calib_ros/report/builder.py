@@ -526,8 +526,15 @@ def verdict_html(calib: Any, truth: Any | None) -> str:
                                           'joint_missing_names', 'imu_dropped_at_gap',
                                           'gaps', 'gaps_reinitialised')
                    if health.get(k)}
-        # the file keeps the guard's total but splits only these reasons; say the rest
-        other = int(health.get('rejected_total', 0)) - sum(
+        by_reason = health.get('rejected')
+        if isinstance(by_reason, dict):  # the input guard's own split (files since session 6)
+            for k in ('imu_out_of_order', 'imu_non_finite', 'joint_out_of_order',
+                      'joint_non_finite', 'joint_missing_names'):
+                reasons.pop(k, None)
+            reasons.update({f'rejected for {k}': int(n) for k, n in sorted(by_reason.items())
+                            if int(n)})
+        # an older file keeps the guard's total but splits only these reasons; say the rest
+        other = 0 if isinstance(by_reason, dict) else int(health.get('rejected_total', 0)) - sum(
             int(health.get(k, 0)) for k in ('imu_out_of_order', 'imu_non_finite',
                                             'joint_out_of_order', 'joint_non_finite',
                                             'joint_missing_names'))

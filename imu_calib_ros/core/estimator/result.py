@@ -130,6 +130,10 @@ def estimator_extra(est: Estimate, sd: FloatArray, layout: StateLayout,
             out[f'{g}_sigma'] = [float(v) for v in sd[sl]]
     out['health'] = {k: v for k, v in health.items()
                      if isinstance(v, (int, float, bool, str))}
+    # the input guard's rejections by reason (the report's verdict names them)
+    rejected = {str(k): int(v) for k, v in (health.get('rejected') or {}).items() if v}
+    if rejected:
+        out['health']['rejected'] = rejected
     return out
 
 
