@@ -116,7 +116,7 @@ def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN20
     from ..core.methods.windows import joint_positions, stationary_windows
     from ..core.sensor_model import SensorErrors
     from msg_adapters.bag import read_bag
-    from ..report.bag_facts import BagFacts, content_hash, pooled_allan
+    from ..report.bag_facts import BagFacts, content_hash, windows_noise
     if args.fixture is None:
         raise InputError('--bag needs --fixture (the navigation starts from its kinematics)')
     fx = load_fixture(args.fixture)
@@ -128,7 +128,7 @@ def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN20
     q = np.degrees(joint_positions(joints, fx.joint_names))
     tj = (joints.stamps_ns - t0).astype(np.float64) * 1e-9
     step = max(1, len(tj) // 4000)
-    allan = pooled_allan(imu.gyro_rad_s, imu.accel_m_s2, dt, [(w.i0, w.i1) for w in wins])
+    allan = windows_noise(imu.gyro_rad_s, imu.accel_m_s2, dt, [(w.i0, w.i1) for w in wins])
     nav = {}
     zero = CalibrationResult.exact(SensorErrors.zeros(), calib.frame_id)
     for name, c in (('no calibration', zero), ('this calibration', calib), *compare):

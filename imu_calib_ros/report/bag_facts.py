@@ -1,5 +1,5 @@
 """What the report shows of the bag itself: content hash, joint timeline with the detected
-plan segments, and the Allan deviation of the stationary windows (issue 12).
+plan segments, and the noise of the stationary windows (issue 12).
 
 Pure numpy on the core's types; the CLI reads the bag and hands the arrays in.
 """
@@ -30,57 +30,25 @@ def content_hash(path: str | Path) -> str:
     return h.hexdigest()[:16]
 
 
-def allan_deviation(x: FloatArray, dt_s: float, taus_n: list[int]) -> FloatArray:
-    """Overlapping Allan deviation of a rate sequence ``x`` (N, k) at cluster sizes
-    ``taus_n`` (IEEE Std 952, annex C): ``0.5 <(mean_{i+n} - mean_i)^2>``; NaN where the
-    sequence is shorter than three clusters."""
-    out = np.full((len(taus_n), x.shape[1]), np.nan)
-    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    for k, n in enumerate(taus_n):
-        if 3 * n > len(x):
-            continue
-        means = (c[n:] - c[:-n]) / n
-        d = means[n:] - means[:-n]
-        out[k] = np.sqrt(0.5 * np.mean(d * d, axis=0))
-    return out
-
-
-@dataclass
-class AllanResult:
-    """Allan deviation of each axis pooled over the stationary windows."""
-
-    tau_s: FloatArray
-    gyro_rad_s: FloatArray  # (len(tau), 3)
-    accel_m_s2: FloatArray  # (len(tau), 3)
-    windows: int
-    seconds: float
-
-
-def pooled_allan(gyro: FloatArray, accel: FloatArray, dt_s: float,
-                 windows: list[tuple[int, int]]) -> AllanResult | None:
-    """Allan deviation per axis from the stationary windows ``[(i0, i1), ...]``: the Allan
-    variance of each window (its own mean removed: the attitude differs between windows),
-    pooled weighted by the number of cluster differences."""
-    longest = max((b - a for a, b in windows), default=0)
-    if longest < 12:
+def windows_noise(gyro: FloatArray, accel: FloatArray, dt_s: float,
+                  windows: list[tuple[int, int]]) -> Any:
+    """The noise of the stationary windows ``[(i0, i1), ...]``: the same overlapping Allan
+    deviation (one segment per window) and IEEE 952 fit as ``imu-calib noise`` on a
+    calibration bag (:func:`~imu_calib_ros.core.noise_characterisation.characterise`); None
+    when no window holds 12 samples."""
+    from ..core.allan import AllanAccumulator
+    from ..core.noise_characterisation import characterise
+    wins = [(a, b) for a, b in windows if b - a >= 12]
+    if not wins:
         return None
-    taus_n = sorted({int(n) for n in np.unique(np.logspace(0, np.log10(longest / 3), 14)
-                                               .astype(int)) if n >= 1})
-    num = {'g': np.zeros((len(taus_n), 3)), 'a': np.zeros((len(taus_n), 3))}
-    den = np.zeros(len(taus_n))
-    for a, b in windows:
-        for key, x in (('g', gyro[a:b]), ('a', accel[a:b])):
-            ad = allan_deviation(x - x.mean(axis=0), dt_s, taus_n)
-            w = np.array([max(len(x) - 2 * n + 1, 0) if 3 * n <= len(x) else 0
-                          for n in taus_n], float)
-            num[key] += np.nan_to_num(ad ** 2) * w[:, None]
-            if key == 'g':
-                den += w
-    ok = den > 0
-    tau = np.asarray(taus_n, float)[ok] * dt_s
-    return AllanResult(tau, np.sqrt(num['g'][ok] / den[ok, None]),
-                       np.sqrt(num['a'][ok] / den[ok, None]), len(windows),
-                       float(sum(b - a for a, b in windows) * dt_s))
+    acc = AllanAccumulator(dt_s, 6)
+    for a, b in wins:
+        acc.add(np.hstack([gyro[a:b], accel[a:b]]))
+        acc.new_segment()
+    curve = acc.curve()
+    if len(curve.tau_s) < 2:
+        return None
+    return characterise(curve, f'{len(wins)} stationary windows')
 
 
 @dataclass
@@ -96,7 +64,7 @@ class BagFacts:
     t_joint_s: FloatArray  # joint timeline, thinned
     q_deg: FloatArray  # (M, n)
     windows_s: list[tuple[float, float]]  # stationary windows (the plan's dwells)
-    allan: AllanResult | None = None
+    allan: Any = None  # core.noise_characterisation.NoiseResult of the windows
     nav: dict[str, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
 
     @property

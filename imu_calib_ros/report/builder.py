@@ -321,31 +321,41 @@ def joint_plot(bag: Any) -> str | None:
 
 
 def allan_plot(bag: Any, noise: dict[str, Any] | None) -> str | None:
-    """Allan deviation of each axis from the stationary windows, with the white-noise line
-    of the density the run used (``sigma(tau) = N / sqrt(tau)``)."""
-    al = getattr(bag, 'allan', None)
-    if al is None or len(al.tau_s) < 2:
+    """Allan deviation of each axis from the stationary windows (dots) with its IEEE 952 fit
+    (lines; the same fit as ``imu-calib noise``), and the white-noise line of the density the
+    run used (``sigma(tau) = N / sqrt(tau)``, dashed)."""
+    res = getattr(bag, 'allan', None)
+    if res is None:
         return None
-    fig, axes = plt.subplots(1, 2, figsize=(12, 3.6))
-    specs = ((axes[0], al.gyro_rad_s, 1.0 / DEG_H, 'deg/h', 'gyro_noise_rad_s_rt_hz',
-              'gyroscopes'),
-             (axes[1], al.accel_m_s2, UG_PER_M_S2, 'ug', 'accel_noise_m_s2_rt_hz',
-              'accelerometers'))
-    for ax, ad, k, unit, key, title in specs:
-        for i in range(3):
-            ax.loglog(al.tau_s, ad[:, i] * k, 'o-', ms=3, lw=1, label='xyz'[i])
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.8))
+    specs = ((axes[0], 0, 1.0 / DEG_H, 'deg/h', 'gyro_noise_rad_s_rt_hz', 'gyroscopes',
+              'gyro', 60.0 * 180.0 / np.pi, 'deg/sqrt(h)', 1.0 / DEG_H, 'deg/h'),
+             (axes[1], 3, UG_PER_M_S2, 'ug', 'accel_noise_m_s2_rt_hz', 'accelerometers',
+              'accel', UG_PER_M_S2, 'ug/sqrt(Hz)', UG_PER_M_S2, 'ug'))
+    for ax, col, k, unit, key, title, sensor, kn, un, kb, ub in specs:
+        for a, color in enumerate(('tab:red', 'tab:green', 'tab:blue')):
+            f = res.fits[col + a]
+            ax.loglog(f.tau_s, f.adev * k, 'o', ms=3, color=color, label='xyz'[a])
+            ax.loglog(f.tau_s, f.model_adev * k, '-', lw=0.8, color=color)
+        tau = res.fits[col].tau_s
         N = (noise or {}).get(key)
         if N:
             # the Allan deviation of white rate noise of density N [unit/sqrt(Hz)] is
             # N / sqrt(tau) (IEEE Std 952, C.1)
-            ax.loglog(al.tau_s, N * k / np.sqrt(al.tau_s), 'k--', lw=1,
-                      label=f'white noise used: {N * k:.3g} {unit}/sqrt(Hz)')
+            ax.loglog(tau, N * k / np.sqrt(tau), 'k--', lw=1,
+                      label=f'white noise used: N {N * kn:.3g} {un}')
+        fitted = [f'N {res.value(sensor, "N") * kn:.3g} {un}']
+        b = res.value(sensor, 'B')
+        fitted.append(f'B {b * kb:.3g} {ub}' if b > 0 else
+                      f'B < {res.bound(sensor, "B") * kb:.3g} {ub} (not shown)')
         ax.set_xlabel('tau [s]')
         ax.set_ylabel(f'Allan deviation [{unit}]')
-        ax.set_title(title, fontsize=9)
+        ax.set_title(f'{title}: fit ' + ', '.join(fitted), fontsize=9)
         ax.legend(fontsize=7)
         ax.grid(True, which='both', lw=0.3)
-    fig.suptitle(f'{al.windows} stationary windows, {al.seconds:.0f} s at rest', fontsize=9)
+    c = res.curve
+    fig.suptitle(f'{res.source}, {c.duration_s:.0f} s at rest: measured (dots), IEEE 952 fit '
+                 '(lines, as imu-calib noise), white noise the run used (dashed)', fontsize=9)
     fig.tight_layout()
     return _png(fig)
 
@@ -656,9 +666,11 @@ READING = {
            '(a model or noise error), points well below a pessimistic measurement noise.',
     'joints': 'The fixture motion as recorded, with the stationary windows the estimator and '
               'the SRT use: check that the plan ran as intended.',
-    'allan': 'The noise of the unit at rest: the white-noise part (slope -1/2) should lie on '
-             'the dashed line of the density the run assumed; a curve above it means the '
-             'sigmas of this calibration are optimistic.',
+    'allan': 'The noise of the unit at rest, with the IEEE 952 terms fitted as imu-calib noise '
+             'fits them (N white noise, B bias instability where the windows are long enough '
+             'to show it): the white-noise part (slope -1/2) should lie on the dashed line of '
+             'the density the run assumed; a curve above it means the sigmas of this '
+             'calibration are optimistic.',
     'nav': 'Free-inertial velocity error from rest with each calibration applied: the better '
            'the calibration, the slower the drift (no calibration drifts fastest).',
     'srt': 'Savage\'s SRT: the measured horizontal acceleration change of each sequence and '
