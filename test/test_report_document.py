@@ -106,13 +106,13 @@ def test_report_sections_header_verdict_and_plots(ekf) -> None:
     n_in, n = map(int, re.search(r'(\d+) of (\d+) estimated entries within 3 sigma',
                                  text).groups())
     assert n >= 40 and n_in >= n - 2
-    # the history gives three plots; without a bag the bag's sections are named once
+    # the history gives four plots; without a bag the bag's sections are named once
     assert figures == ['Convergence of the estimates', 'What the data determined',
-                       'Innovation consistency (NIS) against time']
-    assert _imgs(page) == 3
+                       'Innovation consistency (NIS) against time', 'Innovations against time']
+    assert _imgs(page) == 4
     assert page.count('Not in this report') == 1 and 'give --bag and --fixture' in page
     # each plot is followed by what a reader learns from it
-    assert page.count('class="reading"') == 3
+    assert page.count('class="reading"') == 4
     # parameter blocks: Kg diagonal cells in ppm, off-diagonal in urad
     kg = page.split('<h3>gyro Kg</h3>')[1].split('</table>')[0]
     assert kg.count(' ppm') == 3 and kg.count(' urad') == 6
@@ -298,14 +298,14 @@ def test_full_report_rendered_in_chromium_has_every_section(ekf, tmp_path) -> No
     assert 'Verdict: self-check PASSED' in text and 'estimated entries within 3 sigma' in text
     sections = ['Verdict', 'Parameters', 'Convergence of the estimates',
                 'What the data determined', 'Innovation consistency (NIS) against time',
-                'Fixture motion and plan segments', 'Noise: Allan deviation at rest',
+                'Innovations against time', 'Fixture motion and plan segments', 'Noise: Allan deviation at rest',
                 'Navigated velocity over the bag', 'SRT sequences of srt',
                 'Change from the other calibrations of this unit',
                 'Methods side by side and against the truth']
     heads = [html_mod.unescape(h) for h in re.findall(r'<h2>(.*?)</h2>', dom)]
     assert heads == sections, heads
     assert 'Not in this report' not in text
-    assert _imgs(dom) == 7  # one per plot section (convergence ... SRT)
+    assert _imgs(dom) == 8  # one per plot section (convergence ... SRT)
     for reading in ('Each panel is one group of states', 'Free-inertial velocity error',
                     'The noise of the unit at rest', 'check that the plan ran as intended'):
         assert reading in text, reading

@@ -302,6 +302,43 @@ def nis_plot(extra: dict[str, Any]) -> str | None:
     return _png(fig)
 
 
+def innovation_plot(extra: dict[str, Any]) -> str | None:
+    """Normalised innovations (``y_i / sqrt(S_ii)``, ENU components) against time: top, the
+    interval mean as a z-score (``mean sqrt(n)``, N(0, 1) for a consistent filter) with the
+    +-3 band; bottom, the interval rms against 1. Files before session 6 have no innovations
+    in their history: None."""
+    h = extra.get('history')
+    nis = (h or {}).get('nis') if isinstance(h, dict) else None
+    kinds = {k: d for k, d in (nis or {}).items() if 'innovation_mean' in d}
+    if not kinds:
+        return None
+    assert isinstance(h, dict)
+    t = np.asarray(h['t_s'], float)
+    fig, axes = plt.subplots(2, len(kinds), figsize=(6.5 * len(kinds), 4.6), squeeze=False,
+                             sharex=True)
+    for c, (kind, d) in enumerate(kinds.items()):
+        n = np.asarray(d['accepted'], float)
+        ok = n > 0
+        z = np.asarray(d['innovation_mean'], float)[ok] * np.sqrt(n[ok])[:, None]
+        rms = np.asarray(d['innovation_rms'], float)[ok]
+        top, bot = axes[0][c], axes[1][c]
+        top.axhspan(-3.0, 3.0, color='tab:green', alpha=0.15, label='+-3 (99.7 %)')
+        for i, (name, color) in enumerate(zip('ENU', ('tab:red', 'tab:green', 'tab:blue'))):
+            top.plot(t[ok], z[:, i], '.-', ms=3, lw=0.7, color=color, label=name)
+            bot.plot(t[ok], rms[:, i], '.-', ms=3, lw=0.7, color=color, label=name)
+        bot.axhline(1.0, color='k', lw=0.6)
+        beyond = float(np.mean(np.abs(z) > 3.0)) if z.size else 0.0
+        top.set_title(f'{kind}: interval mean as z-score ({100 * beyond:.0f} % of points '
+                      'beyond 3; 0.3 % expected)', fontsize=9)
+        bot.set_title(f'{kind}: interval rms (1 for a consistent filter)', fontsize=9)
+        bot.set_xlabel('t [s]')
+        top.legend(fontsize=7, ncol=4)
+    axes[0][0].set_ylabel('mean x sqrt(n)')
+    axes[1][0].set_ylabel('rms of y / sqrt(S)')
+    fig.tight_layout()
+    return _png(fig)
+
+
 def joint_plot(bag: Any) -> str | None:
     """Joint angles against time with the stationary windows (the plan's dwells) shaded."""
     if bag is None or len(bag.t_joint_s) < 2:
@@ -664,6 +701,10 @@ READING = {
     'nis': 'The normalised innovation squared per interval against its 99 % band: points '
            'above the band mean the filter was more surprised than its covariance says '
            '(a model or noise error), points well below a pessimistic measurement noise.',
+    'innovations': 'Each component of the innovations divided by its predicted sigma: the '
+                   'interval means should scatter inside +-3 around 0 (a run of points on one '
+                   'side is a bias the model lacks, e.g. a wrong lever arm or latency) and '
+                   'the rms should sit near 1 (above: optimistic noise, below: pessimistic).',
     'joints': 'The fixture motion as recorded, with the stationary windows the estimator and '
               'the SRT use: check that the plan ran as intended.',
     'allan': 'The noise of the unit at rest, with the IEEE 952 terms fitted as imu-calib noise '
@@ -733,6 +774,7 @@ def build_report(calib: Any, truth: Any | None = None,
               convergence_plot(ex, truth_values), 'no estimate history (not an EKF run)'),
              ('What the data determined', 'sigma', sigma_plot(ex), None),
              ('Innovation consistency (NIS) against time', 'nis', nis_plot(ex), None),
+             ('Innovations against time', 'innovations', innovation_plot(ex), None),
              ('Fixture motion and plan segments', 'joints', joint_plot(bag),
               'no joint timeline (give --bag and --fixture)'),
              ('Noise: Allan deviation at rest', 'allan', allan_plot(bag, noise),

@@ -146,6 +146,10 @@ class GateCounters:
     last_nis: dict[str, float] = field(default_factory=dict)
     nis_sum: dict[str, float] = field(default_factory=dict)
     deweighted: dict[str, int] = field(default_factory=dict)  # of the rejected: used, R inflated
+    # accepted updates: sums of the normalised innovations y_i / sqrt(S_ii) and of their
+    # squares, per component (the history's innovation plot)
+    innov_sum: dict[str, FloatArray] = field(default_factory=dict)
+    innov_sq: dict[str, FloatArray] = field(default_factory=dict)
 
 
 class ErrorStateFilter:
@@ -246,6 +250,12 @@ class ErrorStateFilter:
         else:
             c.accepted[kind] = c.accepted.get(kind, 0) + 1
             c.nis_sum[kind] = c.nis_sum.get(kind, 0.0) + nis
+            e = y / np.sqrt(np.diag(S))
+            if kind in c.innov_sum:
+                c.innov_sum[kind] += e
+                c.innov_sq[kind] += e * e
+            else:
+                c.innov_sum[kind], c.innov_sq[kind] = e.copy(), e * e
         K = _potrs(chol, PHt.T)[0].T  # P H^T S^-1
         self.x = self.x + PHt @ S_inv_y
         M = P - K @ (H_s @ P)  # (I - K H) P

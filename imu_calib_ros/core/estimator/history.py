@@ -11,7 +11,10 @@ Each point holds the calibration states' values and sigmas (SI, the labels of
 NIS sum and the count of accepted and gated updates since the previous point: the mean NIS
 per degree of freedom of an interval with ``n`` updates of dimension 3 is
 ``chi2(3 n) / (3 n)``-distributed for a consistent filter (Bar-Shalom, Li & Kirubarajan,
-sect. 5.4), which gives the report its band.
+sect. 5.4), which gives the report its band. Per component (ENU) also the sums of the
+normalised innovations ``y_i / sqrt(S_ii)`` and of their squares: the interval mean of a
+consistent filter's (white, unit-variance) innovations is within ``3 / sqrt(n)`` of zero and
+their rms near 1 (a bias shows in the mean, a wrong noise level in the rms).
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ FloatArray = NDArray[np.float64]
 #: significant digits kept of every value (the plots need three; the sigma ratio four)
 DIGITS = 4
 KINDS = ('velocity', 'attitude')
+ROW = 9  # NIS sum, accepted, gated, 3 innovation sums, 3 innovation square sums
 
 
 def _round(x: FloatArray) -> list[float]:
@@ -50,10 +54,11 @@ class EstimateHistory:
     t_ns: list[int] = field(default_factory=list)
     value: list[list[float]] = field(default_factory=list)
     sigma: list[list[float]] = field(default_factory=list)
-    nis: dict[str, list[list[float]]] = field(default_factory=dict)  # [sum, accepted, gated]
+    # [NIS sum, accepted, gated, innovation sums (3), innovation square sums (3)]
+    nis: dict[str, list[list[float]]] = field(default_factory=dict)
     _t0_ns: int | None = None
     _counters: Any = None  # the filter's GateCounters the baselines below belong to
-    _base: dict[str, tuple[float, int, int]] = field(default_factory=dict)
+    _base: dict[str, list[float]] = field(default_factory=dict)
     _pending: dict[str, list[float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -82,8 +87,8 @@ class EstimateHistory:
         self.value.append(_round(values))
         self.sigma.append(_round(sigmas))
         for k in KINDS:
-            self.nis.setdefault(k, [[0.0, 0, 0] for _ in self.t_ns[:-1]])
-            self.nis[k].append(self._pending.pop(k, [0.0, 0, 0]))
+            self.nis.setdefault(k, [[0.0] * ROW for _ in self.t_ns[:-1]])
+            self.nis[k].append(self._pending.pop(k, [0.0] * ROW))
         if len(self.t_ns) >= self.max_points:
             self._thin()
 
@@ -95,13 +100,16 @@ class EstimateHistory:
             self._counters = counters
             self._base = {}
         for k in KINDS:
-            now = (float(counters.nis_sum.get(k, 0.0)), int(counters.accepted.get(k, 0)),
-                   int(counters.rejected.get(k, 0)))
-            base = self._base.get(k, (0.0, 0, 0))
-            p = self._pending.setdefault(k, [0.0, 0, 0])
-            p[0] += now[0] - base[0]
-            p[1] += now[1] - base[1]
-            p[2] += now[2] - base[2]
+            e = counters.innov_sum.get(k)
+            q = counters.innov_sq.get(k)
+            now = [float(counters.nis_sum.get(k, 0.0)), int(counters.accepted.get(k, 0)),
+                   int(counters.rejected.get(k, 0)),
+                   *([0.0] * 3 if e is None else [float(v) for v in e]),
+                   *([0.0] * 3 if q is None else [float(v) for v in q])]
+            base = self._base.get(k, [0.0] * ROW)
+            p = self._pending.setdefault(k, [0.0] * ROW)
+            for i in range(ROW):
+                p[i] += now[i] - base[i]
             self._base[k] = now
 
     def _thin(self) -> None:
@@ -110,12 +118,12 @@ class EstimateHistory:
         n = len(self.t_ns)
         keep = list(range(n - 1, -1, -2))[::-1]
         for k, rows in self.nis.items():
-            merged, acc = [], [0.0, 0, 0]
+            merged, acc = [], [0.0] * ROW
             for i, r in enumerate(rows):
                 acc = [a + b for a, b in zip(acc, r)]
                 if i in keep:
                     merged.append(acc)
-                    acc = [0.0, 0, 0]
+                    acc = [0.0] * ROW
             self.nis[k] = merged
         self.t_ns = [self.t_ns[i] for i in keep]
         self.value = [self.value[i] for i in keep]
@@ -126,8 +134,9 @@ class EstimateHistory:
         """Plain YAML data (``extra.history``), or None before the first point.
 
         Keys: ``t_s`` (from the first recorded block), ``names`` (state labels), ``value``
-        and ``sigma`` (one row per point, SI), ``nis`` {kind: {sum, accepted, gated}: one
-        entry per point, the updates since the previous point}, ``period_s``.
+        and ``sigma`` (one row per point, SI), ``nis`` {kind: {sum, accepted, gated,
+        innovation_mean, innovation_rms (per ENU component, normalised)}: one entry per
+        point, the accepted updates since the previous point}, ``period_s``.
         """
         if not self.t_ns or self._t0_ns is None:
             return None
@@ -139,7 +148,11 @@ class EstimateHistory:
             'sigma': [list(r) for r in self.sigma],
             'nis': {k: {'sum': [float(f'{r[0]:.{DIGITS}g}') for r in rows],
                         'accepted': [int(r[1]) for r in rows],
-                        'gated': [int(r[2]) for r in rows]}
+                        'gated': [int(r[2]) for r in rows],
+                        'innovation_mean': [_round(np.asarray(r[3:6]) / max(r[1], 1))
+                                            for r in rows],
+                        'innovation_rms': [_round(np.sqrt(np.asarray(r[6:9]) / max(r[1], 1)))
+                                           for r in rows]}
                     for k, rows in self.nis.items() if any(r[1] or r[2] for r in rows)},
             'period_s': self.period_s,
         }
