@@ -298,7 +298,8 @@ def test_full_report_rendered_in_chromium_has_every_section(ekf, tmp_path) -> No
     assert 'Verdict: self-check PASSED' in text and 'estimated entries within 3 sigma' in text
     sections = ['Verdict', 'Parameters', 'Convergence of the estimates',
                 'What the data determined', 'Innovation consistency (NIS) against time',
-                'Innovations against time', 'Fixture motion and plan segments', 'Noise: Allan deviation at rest',
+                'Innovations against time', 'Fixture motion and plan segments',
+                'Noise: Allan deviation at rest',
                 'Navigated velocity over the bag', 'SRT sequences of srt',
                 'Change from the other calibrations of this unit',
                 'Methods side by side and against the truth']
