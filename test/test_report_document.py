@@ -356,3 +356,45 @@ def test_allan_of_the_windows_is_the_noise_commands_fit() -> None:
     assert res.value('gyro', 'N') == pytest.approx(n_g, rel=0.12)
     assert res.value('accel', 'N') == pytest.approx(n_a, rel=0.12)
     assert windows_noise(gyro, accel, dt, [(0, 5)]) is None
+
+
+def test_parameter_covariance_in_the_file_matches_its_sigmas(ekf) -> None:
+    """extra.estimator.parameter_covariance (CONTRACT 4 order) has the file's sigmas on its
+    diagonal (4 digits) and the filter's correlations off it (an SRT-like plan correlates
+    an accelerometer's bias with its scale strongly)."""
+    import numpy as np
+    calib, _, _ = ekf
+    cov = np.asarray(calib.extra['estimator']['parameter_covariance'], float)
+    sd = calib.sigma.as_vector()
+    assert cov.shape == (45, 45) and np.allclose(cov, cov.T, rtol=1e-3, atol=0)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), sd, rtol=1e-3)
+    corr = cov / np.outer(sd, sd)
+    off = np.abs(corr[~np.eye(45, dtype=bool)])
+    assert off.max() > 0.3  # correlations kept, not a diagonal
+
+
+def test_velocity_envelope_holds_this_calibration_not_the_raw_unit(ekf, tmp_path) -> None:
+    """The navigated-velocity envelope (calibrations drawn from the file's covariance): the
+    calibration's own velocity error stays inside +-3 x the spread for nearly all the bag
+    (95 %: the band leaves out the heading error and the noise), the uncalibrated unit's
+    leaves it. Nav grade, demo_short at 100 Hz, the file's own bag."""
+    import argparse
+
+    import numpy as np
+
+    from imu_calib_ros.cli import main
+    from imu_calib_ros.cli.report import _bag_facts
+    calib, _, _ = ekf
+    bag = tmp_path / 'bag'
+    assert main(['simulate', '--fixture', 'three_axis', '--plan', 'demo_short', '--imu',
+                 'nav_grade', '--rate', '100', '--seed', '1', '--output', str(bag)]) == 0
+    args = argparse.Namespace(bag=str(bag), fixture='three_axis', envelope_draws=8,
+                              imu_topic='/imu/data_raw', joint_topic='/joint_states')
+    _, facts = _bag_facts(args, calib, [])
+    t, sd, draws = facts.envelope
+    assert draws == 8 and sd.shape == facts.nav['this calibration'][1].shape
+    late = t > 20.0  # after the first rotations (the band starts at zero)
+    own = np.abs(facts.nav['this calibration'][1][late]) <= 3 * sd[late] + 1e-4
+    raw = np.abs(facts.nav['no calibration'][1][late]) <= 3 * sd[late] + 1e-4
+    assert own.mean() > 0.95, own.mean(axis=0)
+    assert raw.mean() < 0.8, raw.mean(axis=0)

@@ -27,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help='other calibration files to show next to CALIB.yaml')
     p.add_argument('--output', '-o', default='report.html', metavar='REPORT.html',
                    help='HTML file to write (default report.html in the current directory)')
+    p.add_argument('--envelope-draws', type=int, default=10, metavar='N',
+                   help='with --bag: navigate N more times with calibrations drawn from '
+                        'CALIB.yaml\'s sigmas for its expected velocity error envelope (about '
+                        '1 s each; default 10, 0: no envelope)')
     p.add_argument('--pdf', default=None, metavar='REPORT.pdf',
                    help='also write the header, verdict, parameters and plots as a PDF '
                         '(matplotlib PdfPages)')
@@ -108,6 +112,8 @@ def _nav_velocity(args: argparse.Namespace, calib, data=None):  # noqa: ANN001, 
 def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN202
     """The bag as the report shows it: hash, joint timeline, stationary windows, Allan
     deviation, navigated velocity without calibration, with this one and with the others."""
+    import dataclasses
+
     import numpy as np
 
     from ..core.calibration import CalibrationResult
@@ -133,9 +139,29 @@ def _bag_facts(args: argparse.Namespace, calib, compare):  # noqa: ANN001, ANN20
     zero = CalibrationResult.exact(SensorErrors.zeros(), calib.frame_id)
     for name, c in (('no calibration', zero), ('this calibration', calib), *compare):
         nav[name] = _nav_velocity(args, c, (imu, joints))
+    envelope = None
+    draws = int(getattr(args, 'envelope_draws', 0) or 0)
+    if draws > 0:
+        # Monte Carlo over the file's covariance (its correlations when it has them; else
+        # independent per entry, an upper bound); fixed entries with their assumed sigma
+        rng = np.random.default_rng(0)
+        x0, sd = calib.errors.as_vector(), calib.sigma.as_vector()
+        cov = ((calib.extra or {}).get('estimator') or {}).get('parameter_covariance')
+        if cov is not None:  # the filter's correlations (an EKF file since session 6)
+            w, V = np.linalg.eigh(np.asarray(cov, float))
+            L = V * np.sqrt(np.clip(w, 0.0, None))  # 4-digit rounding: clip tiny negatives
+        else:  # no correlations in the file: independent draws, an upper bound
+            L = np.diag(sd)
+        runs = []
+        for _ in range(draws):
+            c = dataclasses.replace(calib, errors=SensorErrors.from_vector(
+                x0 + L @ rng.standard_normal(len(x0))))
+            runs.append(_nav_velocity(args, c, (imu, joints))[1] - nav['this calibration'][1])
+        envelope = (nav['this calibration'][0], np.sqrt(np.mean(np.square(runs), axis=0)),
+                    draws)
     return fx, BagFacts(str(args.bag), content_hash(args.bag), float(t_imu[-1]), len(imu),
                         1.0 / dt, fx.joint_names, tj[::step], q[::step],
-                        [(w.t0_s, w.t1_s) for w in wins], allan, nav)
+                        [(w.t0_s, w.t1_s) for w in wins], allan, nav, envelope)
 
 
 def run(args: argparse.Namespace) -> int:

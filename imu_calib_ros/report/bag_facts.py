@@ -66,6 +66,9 @@ class BagFacts:
     windows_s: list[tuple[float, float]]  # stationary windows (the plan's dwells)
     allan: Any = None  # core.noise_characterisation.NoiseResult of the windows
     nav: dict[str, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
+    # (t, rms velocity spread (T, 3), draws): navigations with calibrations drawn from the
+    # file's sigmas about 'this calibration' (the expected error envelope), or None
+    envelope: tuple[FloatArray, FloatArray, int] | None = None
 
     @property
     def segments(self) -> int:

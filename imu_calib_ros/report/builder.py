@@ -402,10 +402,18 @@ def nav_plot(bag: Any) -> str | None:
     nav = getattr(bag, 'nav', None)
     if not nav:
         return None
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.2), sharex=True)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.4), sharex=True)
+    env = getattr(bag, 'envelope', None)
     for k, (name, (t, v)) in enumerate(nav.items()):
         for i, ax in enumerate(axes):
             ax.plot(t, v[:, i], lw=1, color=f'C{k}', label=name)
+            if env is not None and name == 'this calibration':
+                # what this calibration's sigmas allow: the spread of navigations with
+                # calibrations drawn from them, about zero (the error it leaves should be in it)
+                te, sd, draws = env
+                ax.fill_between(te, -3 * sd[:, i], 3 * sd[:, i],
+                                color=f'C{k}', alpha=0.2, lw=0,
+                                label=f'3-sigma envelope ({draws} draws)' if i == 0 else None)
     for i, ax in enumerate(axes):
         ax.set_title(f'velocity error {"ENU"[i]}', fontsize=9)
         ax.set_xlabel('t [s] from the first stationary window')
@@ -713,7 +721,12 @@ READING = {
              'the density the run assumed; a curve above it means the sigmas of this '
              'calibration are optimistic.',
     'nav': 'Free-inertial velocity error from rest with each calibration applied: the better '
-           'the calibration, the slower the drift (no calibration drifts fastest).',
+           'the calibration, the slower the drift (no calibration drifts fastest). The band '
+           'is the error this calibration\'s sigmas allow (+-3 x the rms spread of '
+           'navigations with calibrations drawn from them): its own curve should stay inside '
+           '(outside: errors the sigmas do not cover, or the heading and noise the band '
+           'leaves out); a curve of another calibration outside it differs by more than this '
+           'one claims to know.',
     'srt': 'Savage\'s SRT: the measured horizontal acceleration change of each sequence and '
            'what the fit leaves; residuals inside their 3-sigma bars mean the error model '
            'explains the data.',

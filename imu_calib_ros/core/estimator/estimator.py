@@ -67,7 +67,7 @@ from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_correction, pr
                      prior_shift, prior_sigmas, prior_vector)
 from .propagation import propagate_block
 from .result import (CONTRACT_KEYS, Estimate, calibration_result, estimator_extra,
-                     snapshot_extra, values_of, with_values)
+                     parameter_covariance, snapshot_extra, values_of, with_values)
 
 __all__ = ['CalibrationEstimator', 'Estimate', 'prior_sigmas', 'CONTRACT_KEYS', 'RAW_PRIOR',
            'COARSE_FLOOR', 'MEMS_BIAS_WALK', 'MEAS_SCALE']
@@ -290,7 +290,11 @@ class CalibrationEstimator:
             st, self.layout, self._prior, frame_id or self._frame(),
             lambda sd: {'estimator': {**estimator_extra(st, sd, self.layout, self.health(),
                                                         self.attitude_aiding, self.start),
-                                      'covariance_scale': float(scale)},
+                                      'covariance_scale': float(scale),
+                                      # CONTRACT 4 order, 4 digits (the report's envelope)
+                                      'parameter_covariance': [
+                                          [float(f'{v:.4g}') for v in row] for row in
+                                          parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:

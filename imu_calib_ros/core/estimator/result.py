@@ -109,6 +109,35 @@ def calibration_result(st: Estimate, layout: StateLayout, prior: dict[str, Float
                              extra=extra_of(sd))
 
 
+def parameter_covariance(st: Estimate, layout: StateLayout,
+                         prior: dict[str, FloatArray]) -> FloatArray:
+    """Covariance (45, 45) of ``SensorErrors.as_vector()`` (CONTRACT 4 order): the filter's
+    for the estimated groups (their correlations included), the prior variance on the
+    diagonal for groups held fixed. The map from the calibration states is linear (a
+    selection; the gyro misalignment pair is one state), built column by column through
+    :func:`with_values` and ``errors_from_theta``."""
+    zg, za = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
+    z3 = np.zeros(3)
+    m = layout.n - 6
+    J = np.zeros((sm.N_PARAMETERS, m))
+    for j in range(m):
+        e = np.zeros(m)
+        e[j] = 1.0
+        tg, ta, _, _ = with_values(layout, e, zg, za, z3, z3)
+        J[:, j] = em.errors_from_theta(tg, ta, sm.SensorErrors).as_vector()
+    cov = J @ st.covariance @ J.T
+    sig_g, sig_a = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
+    for grp in em.GYRO_GROUPS:
+        if grp not in layout.groups:
+            sig_g[em.gyro_cols(grp)] = prior[grp]
+    for grp in em.ACCEL_GROUPS:
+        if grp not in layout.groups:
+            sig_a[em.accel_cols(grp)] = prior[grp]
+    fixed = em.errors_from_theta(sig_g, sig_a, sm.SensorErrors).as_vector()
+    cov[np.diag_indices_from(cov)] += fixed ** 2
+    return 0.5 * (cov + cov.T)
+
+
 def estimator_extra(est: Estimate, sd: FloatArray, layout: StateLayout,
                     health: dict[str, Any], attitude_aiding: bool = False,
                     start: Any = None) -> dict[str, Any]:
