@@ -398,3 +398,25 @@ def test_velocity_envelope_holds_this_calibration_not_the_raw_unit(ekf, tmp_path
     raw = np.abs(facts.nav['no calibration'][1][late]) <= 3 * sd[late] + 1e-4
     assert own.mean() > 0.95, own.mean(axis=0)
     assert raw.mean() < 0.8, raw.mean(axis=0)
+
+
+def test_header_names_the_estimator_settings_that_differ_from_the_defaults(ekf) -> None:
+    """The file records the settings that are not the shipped defaults (none for the plain
+    command); the header says 'the defaults' or lists them."""
+    import dataclasses as dc
+
+    from imu_calib_ros.core.estimator import CalibrationEstimator, EstimatorConfig
+    from imu_calib_ros.report.builder import header_html
+    calib, _, _ = ekf
+    assert calib.extra['estimator']['settings_changed'] == {}
+    text = re.sub(r'\s+', ' ', _text(header_html(calib, None, None, None, 'now')))
+    assert 'estimator settings the defaults' in text
+    est = CalibrationEstimator(load_fixture('three_axis'), None,
+                               EstimatorConfig(gate_probability=0.999, gate_action='reject'))
+    changed = est._settings_changed()
+    assert changed == {'gate_probability': 0.999, 'gate_action': 'reject'}
+    ex = {**calib.extra, 'estimator': {**calib.extra['estimator'],
+                                       'settings_changed': changed}}
+    text = re.sub(r'\s+', ' ',
+                  _text(header_html(dc.replace(calib, extra=ex), None, None, None, 'now')))
+    assert 'gate_action reject, gate_probability 0.999 (the rest the defaults)' in text

@@ -467,6 +467,11 @@ def header_html(calib: Any, calib_path: str | None, fixture: Any, bag: Any,
                                   'attitude aiding '
                                   f'{"on" if est.get("attitude_aiding") else "off"}'
                                   f'; time offset {1e3 * est.get("time_offset_s", 0.0):.3g} ms'))
+    if isinstance(est.get('settings_changed'), dict):
+        ch = est['settings_changed']
+        listed = ', '.join(f'{k} {v}' for k, v in sorted(ch.items()))
+        rows.append(('estimator settings', f'{listed} (the rest the defaults)' if ch
+                     else 'the defaults (config/estimator.yaml)'))
     h = ex.get('history')
     if isinstance(h, dict) and h.get('t_s'):
         rows.append(('run', f'{h["t_s"][-1]:.1f} s filtered; history of {len(h["t_s"])} '

@@ -291,11 +291,23 @@ class CalibrationEstimator:
             lambda sd: {'estimator': {**estimator_extra(st, sd, self.layout, self.health(),
                                                         self.attitude_aiding, self.start),
                                       'covariance_scale': float(scale),
+                                      'settings_changed': self._settings_changed(),
                                       # CONTRACT 4 order, 4 digits (the report's envelope)
                                       'parameter_covariance': [
                                           [float(f'{v:.4g}') for v in row] for row in
                                           parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
+
+    def _settings_changed(self) -> dict[str, Any]:
+        """The estimator settings that differ from the shipped defaults (the report's header:
+        with what the file was made)."""
+        default = EstimatorConfig()
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self.config):
+            v = getattr(self.config, f.name)
+            if v != getattr(default, f.name):
+                out[f.name] = v if isinstance(v, (bool, int, float, str)) else str(v)
+        return out
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
