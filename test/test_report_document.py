@@ -67,6 +67,10 @@ def test_units_per_entry_ppm_on_the_diagonal_urad_off_it(ekf) -> None:
         cells = re.findall(r'(-?[\d.e+-]+ \+- [\d.e+-]+ (\w+))', row)
         assert row.split()[0] == 'xyz'[i] and len(cells) == 3, row
         assert [c[1] for c in cells] == ['ppm' if j == i else 'urad' for j in range(3)], row
+    # vectors: the label, then one row in the same columns; no line wider than 90 columns
+    k = next(i for i, line in enumerate(lines) if line.startswith('gyro bias [deg/h]'))
+    assert len(re.findall(r'\+- [\d.e+-]+ deg/h', lines[k + 1])) == 3, lines[k + 1]
+    assert max(map(len, lines[1:])) <= 90, max(lines[1:], key=len)
 
 
 def test_fixed_parameters_are_never_shown_as_estimates() -> None:

@@ -24,11 +24,11 @@ AXES = 'xyz'
 
 #: what the rows and columns of each matrix parameter mean (shown under its title)
 MATRIX_NOTES: dict[str, str] = {
-    'gyroscope.scale_misalignment': 'row i = gyro i; scale factor (ppm) on the diagonal, '
-                                    'misalignment (urad) off it; symmetric',
+    'gyroscope.scale_misalignment': 'row i = gyro i; scale (ppm) on the diagonal, '
+                                    'misalignment (urad) off; symmetric',
     'gyroscope.g_sensitivity': 'row i = gyro i, column j = specific force along j',
-    'accelerometer.scale_misalignment': 'row i = accelerometer i; scale factor (ppm) on the '
-                                        'diagonal, misalignment (urad) off it',
+    'accelerometer.scale_misalignment': 'row i = accelerometer i; scale (ppm) on the '
+                                        'diagonal, misalignment (urad) off',
     'accelerometer.size_effect': 'row i = position r_i of accelerometer i; r_i[i] = 0 by '
                                  'definition',
 }
@@ -180,8 +180,8 @@ def folded_line(folded: list[Block]) -> str:
 
 
 def format_text(res: Any) -> str:
-    """The calibration as text blocks (the ``replay`` summary): vectors on one line, each
-    matrix as a labelled 3x3 block, every entry ``value +- sigma unit`` or ``fixed``; the
+    """The calibration as text blocks (the ``replay`` summary): each vector as its label and
+    one row under the matrices' x, y, z columns, each matrix as a labelled 3x3 block, every entry ``value +- sigma unit`` or ``fixed``; the
     parameters held at zero folded into one line at the end."""
     bl = blocks(res)
     lines = [f'calibration of {res.frame_id}: value +- one sigma; "fixed" = not estimated '
@@ -199,9 +199,10 @@ def format_text(res: Any) -> str:
             for i in range(3):
                 lines.append(f'    {AXES[i]} ' + ''.join(
                     f'{cell_text(b, (i, j)):>{width + 2}s}' for j in range(3)))
-        else:
-            cells = ''.join(f'   {AXES[i]}: {cell_text(b, (i,)):<{width}s}' for i in range(3))
-            lines.append(f'{b.label + " [" + b.unit_text + "]":<22s}{cells}'.rstrip())
+        else:  # the label, then x y z under the matrices' columns (90 columns, not 120)
+            lines.append(f'{b.label} [{b.unit_text}]: x, y, z')
+            lines.append('      ' + ''.join(f'{cell_text(b, (i,)):>{width + 2}s}'
+                                            for i in range(3)))
     folded = [b for b in bl if b.folded]
     if folded:
         lines.append(folded_line(folded))
