@@ -181,8 +181,9 @@ def folded_line(folded: list[Block]) -> str:
 
 def format_text(res: Any) -> str:
     """The calibration as text blocks (the ``replay`` summary): each vector as its label and
-    one row under the matrices' x, y, z columns, each matrix as a labelled 3x3 block, every entry ``value +- sigma unit`` or ``fixed``; the
-    parameters held at zero folded into one line at the end."""
+    one row under the matrices' x, y, z columns, each matrix as a labelled 3x3 block, every
+    entry ``value +- sigma unit`` or ``fixed``; the parameters held at zero folded into one
+    line at the end."""
     bl = blocks(res)
     lines = [f'calibration of {res.frame_id}: value +- one sigma; "fixed" = not estimated '
              '(assumed value)']
