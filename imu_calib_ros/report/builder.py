@@ -397,6 +397,18 @@ def allan_plot(bag: Any, noise: dict[str, Any] | None) -> str | None:
     return _png(fig)
 
 
+def _sparse_symlog_ticks(ax: Any, linthresh: float) -> None:
+    """At most about seven labelled ticks on a symlog axis: 0 and every k-th decade on each
+    side (matplotlib labels every decade, unreadable over 10 decades)."""
+    lo, hi = ax.get_ylim()
+    top = max(abs(lo), abs(hi), linthresh * 10)
+    decades = np.arange(np.log10(linthresh), np.ceil(np.log10(top)) + 1)
+    step = max(1, int(np.ceil(len(decades) / 3)))
+    pos = 10.0 ** decades[::-1][::step]
+    ticks = sorted([0.0, *[p for p in pos if p <= hi], *[-p for p in pos if -p >= lo]])
+    ax.set_yticks(ticks)
+
+
 def nav_plot(bag: Any) -> str | None:
     """Navigated horizontal velocity over the bag: no calibration, the estimate, others."""
     nav = getattr(bag, 'nav', None)
@@ -418,6 +430,7 @@ def nav_plot(bag: Any) -> str | None:
         ax.set_title(f'velocity error {"ENU"[i]}', fontsize=9)
         ax.set_xlabel('t [s] from the first stationary window')
         ax.set_yscale('symlog', linthresh=1e-3)
+        _sparse_symlog_ticks(ax, 1e-3)
     axes[0].set_ylabel('[m/s] (symlog)')
     axes[0].legend(fontsize=7)
     fig.tight_layout()
