@@ -424,3 +424,25 @@ def test_header_names_the_estimator_settings_that_differ_from_the_defaults(ekf) 
     text = re.sub(r'\s+', ' ',
                   _text(header_html(dc.replace(calib, extra=ex), None, None, None, 'now')))
     assert 'gate_action reject, gate_probability 0.999 (the rest the defaults)' in text
+
+
+def test_header_names_each_motion_segment_by_its_turns() -> None:
+    """The plan segments in the header: each motion between two stationary windows as the
+    joints it turned and by how much (deg), in order; past 24 segments, counted."""
+    import numpy as np
+
+    from imu_calib_ros.report.bag_facts import BagFacts
+    t = np.linspace(0.0, 40.0, 401)
+    q = np.zeros((401, 2))
+    q[t >= 12, 1] = 90.0  # inner +90 between the first two windows
+    q[t >= 25, 0] = -90.0  # outer -90 and inner back to 0 between the next two
+    q[t >= 25, 1] = 0.0
+    bag = BagFacts('b', 'h', 40.0, 4000, 100.0, ('outer', 'inner'), t, q,
+                   [(2.0, 10.0), (14.0, 22.0), (28.0, 38.0)])
+    assert bag.segment_moves() == ['inner +90', 'outer -90 inner -90']
+    assert bag.summary()['plan segments detected'] == (
+        '3 stationary windows, 2 motion segments between them: inner +90; outer -90 inner '
+        '-90 (deg)')
+    wins = [(2.0 + k, 2.5 + k) for k in range(30)]
+    many = BagFacts('b', 'h', 40.0, 4000, 100.0, ('outer', 'inner'), t, q, wins)
+    assert 'no net turn x' in many.summary()['plan segments detected']

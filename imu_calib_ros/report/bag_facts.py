@@ -75,10 +75,37 @@ class BagFacts:
         """Motion segments between the stationary windows."""
         return max(len(self.windows_s) - 1, 0)
 
+    def segment_moves(self, min_deg: float = 0.5) -> list[str]:
+        """Each motion segment as the joints it turned and by how much, between the means of
+        the stationary windows around it: ``'inner +90'``, ``'middle -90 inner +180'``."""
+        t, q = self.t_joint_s, self.q_deg
+        means = []
+        for a, b in self.windows_s:
+            k = (t >= a) & (t <= b)
+            means.append(q[k].mean(axis=0) if k.any() else
+                         q[min(int(np.searchsorted(t, a)), len(t) - 1)])
+        out = []
+        for m0, m1 in zip(means[:-1], means[1:]):
+            d = m1 - m0
+            moved = [f'{n} {v:+.0f}' for n, v in zip(self.joint_names, d) if abs(v) >= min_deg]
+            out.append(' '.join(moved) or 'no net turn')
+        return out
+
     def summary(self) -> dict[str, Any]:
         """Header figures."""
         return {'bag': self.path, 'content hash (sha256)': self.sha256,
                 'duration': f'{self.duration_s:.1f} s, {self.imu_samples} IMU samples at '
                             f'{self.imu_rate_hz:.4g} Hz',
                 'plan segments detected': f'{len(self.windows_s)} stationary windows, '
-                                          f'{self.segments} motion segments between them'}
+                                          f'{self.segments} motion segments between them'
+                                          + _moves_text(self.segment_moves())}
+
+
+def _moves_text(moves: list[str]) -> str:
+    """The segments' turns in order (deg), or, past 24 of them, how often each occurs."""
+    if not moves:
+        return ''
+    if len(moves) <= 24:
+        return ': ' + '; '.join(moves) + ' (deg)'
+    from collections import Counter
+    return ': ' + '; '.join(f'{m} x{n}' for m, n in Counter(moves).most_common()) + ' (deg)'
