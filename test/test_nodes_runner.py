@@ -14,7 +14,7 @@ import pytest
 
 from imu_calib_ros.core.calibration import CalibrationResult
 from imu_calib_ros.core.sensor_model import SensorErrors
-from imu_calib_ros.core.types import JointSample
+from imu_calib_ros.core.types import ImuBatch, JointBatch, JointSample
 from imu_calib_ros.core.estimator.runner import EstimatorRunner, is_diverged
 
 
@@ -53,8 +53,10 @@ class FakeEstimator:
         pass
 
 
-def imu(k: int) -> tuple[int, tuple[float, ...], tuple[float, ...]]:
-    return (10**9 + k * 5_000_000, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))
+def imu(*ks: int) -> ImuBatch:
+    """IMU samples ``ks`` (5 ms apart, at rest) as one batch."""
+    return ImuBatch.from_rows([(10**9 + k * 5_000_000, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))
+                               for k in ks], 'imu_link')
 
 
 def test_diverged_estimate_never_replaces_the_last_good_one() -> None:
@@ -66,7 +68,7 @@ def test_diverged_estimate_never_replaces_the_last_good_one() -> None:
     try:
         seen = []
         for k in range(3):
-            assert runner.submit([imu(k)])
+            assert runner.submit(imu(k))
             assert runner.request('estimate', 10.0)
             runner.poll()
             seen.append((runner.latest.diverged, runner.last_good.result.errors
@@ -75,7 +77,7 @@ def test_diverged_estimate_never_replaces_the_last_good_one() -> None:
         # diverged: the latest says so, the stream keeps the last good calibration
         assert seen[2] == (True, 2e-5)
         assert runner.latest.result.errors.gyro_bias_rad_s[0] == 5.0
-        assert runner.submit([imu(3)]) and runner.request('estimate', 10.0)
+        assert runner.submit(imu(3)) and runner.request('estimate', 10.0)
         runner.poll()
         assert runner.last_good.result.errors.gyro_bias_rad_s[0] == 3e-5  # recovered
     finally:
@@ -95,7 +97,7 @@ def test_full_queue_drops_and_counts_instead_of_growing() -> None:
     fake = FakeEstimator([({'status': 'OK'}, 0.0)], gate)
     runner = EstimatorRunner('thread', None, 'imu_link', max_batches=3, factory=lambda: fake)
     try:
-        accepted = [runner.submit([imu(k), imu(k + 1)]) for k in range(0, 20, 2)]
+        accepted = [runner.submit(imu(k, k + 1)) for k in range(0, 20, 2)]
         # one batch in the worker, three queued, the rest dropped with a count
         assert sum(accepted) <= 4 and runner.dropped == 2 * (10 - sum(accepted))
         gate.set()
@@ -112,9 +114,9 @@ def test_process_mode_runs_the_real_estimator_and_answers() -> None:
     spec = (str(resolve_config_file('three_axis', 'fixtures')), 'nav_grade', EstimatorConfig())
     runner = EstimatorRunner('process', spec, 'my_imu')
     try:
-        items: list[Any] = [JointSample(10**9, ('outer', 'middle', 'inner'), np.zeros(3))]
-        items += [imu(k) for k in range(1, 400)]
-        assert runner.submit(items)
+        joints = JointBatch.runs([JointSample(10**9, ('outer', 'middle', 'inner'),
+                                              np.zeros(3))])
+        assert runner.submit(imu(*range(1, 400)), joints)
         assert runner.request('estimate', 60.0, flush=True)
         runner.poll()
         snap = runner.latest
@@ -165,12 +167,12 @@ def test_an_unexpected_error_keeps_the_worker_answering() -> None:
     fake = CrashingEstimator([({'status': 'OK'}, 0.0)])
     runner = EstimatorRunner('thread', None, 'imu_link', factory=lambda: fake)
     try:
-        assert runner.submit([imu(0), imu(1)])
+        assert runner.submit(imu(0, 1))
         assert runner.request('estimate', 10.0)
         assert runner.alive
         runner.poll()
         assert runner.latest is not None
         assert 'RuntimeError: compensate did not converge' in runner.latest.error
-        assert runner.submit([imu(2)]) and runner.request('estimate', 10.0)  # still serving
+        assert runner.submit(imu(2)) and runner.request('estimate', 10.0)  # still serving
     finally:
         runner.stop()

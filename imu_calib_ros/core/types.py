@@ -6,6 +6,7 @@ at the end of that interval, in the IMU body frame.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +66,15 @@ class ImuBatch:
                    np.array([s.accel_m_s2 for s in samples], float),
                    samples[0].frame_id)
 
+    @classmethod
+    def from_rows(cls, rows: Sequence[tuple[int, Sequence[float], Sequence[float]]],
+                  frame_id: str = '') -> 'ImuBatch':
+        """Stack ``(stamp_ns, gyro (3,), accel (3,))`` rows, sorted by stamp (stable)."""
+        stamps = np.array([r[0] for r in rows], np.int64)
+        order = np.argsort(stamps, kind='stable')
+        return cls(stamps[order], np.array([r[1] for r in rows], float).reshape(-1, 3)[order],
+                   np.array([r[2] for r in rows], float).reshape(-1, 3)[order], frame_id)
+
 
 @dataclass(slots=True)
 class JointBatch:
@@ -86,6 +96,24 @@ class JointBatch:
     def __iter__(self):
         for i in range(len(self)):
             yield self.sample(i)
+
+    @classmethod
+    def runs(cls, samples: Sequence[JointSample]) -> list['JointBatch']:
+        """Samples sorted by stamp (stable), one batch per run of one name list (positions
+        only, as the estimator takes them)."""
+        ordered = sorted(samples, key=lambda j: j.stamp_ns)
+        out = []
+        start = 0
+        for k in range(1, len(ordered) + 1):
+            if k == len(ordered) or ordered[k].names != ordered[start].names or \
+                    len(ordered[k].positions_rad) != len(ordered[start].positions_rad):
+                run = ordered[start:k]
+                out.append(cls(np.array([j.stamp_ns for j in run], np.int64),
+                               tuple(run[0].names),
+                               np.array([np.asarray(j.positions_rad, float)
+                                         for j in run]).reshape(len(run), -1)))
+                start = k
+        return out
 
 
 #: CONTRACT 1: an interval longer than this many nominal periods follows a gap.

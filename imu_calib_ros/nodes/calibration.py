@@ -26,12 +26,14 @@ diagnostics follow ``/clock``; a backward jump of ``/clock`` (a looping bag) res
 estimator's navigation (rclpy jump callback); the estimator itself only sees message stamps.
 
 Threads: the raw IMU is served by its own thread
-(:class:`~imu_calib_ros.nodes.input_thread.InputThread`: serialised bytes in, checked, put
-back in stamp order within ``reorder_window_s`` (:mod:`imu_calib_ros.core.reorder`, issue 17),
-compensated and published as bytes, tens of microseconds), which queues the sample; the rest
-spins in a SingleThreadedExecutor, where a 20 Hz timer hands the queue to an
-:class:`~imu_calib_ros.core.estimator.runner.EstimatorRunner` (a child process by default,
-or a thread), whose bounded queue drops and counts under overload. Faults (issue 6): see
+(:class:`~imu_calib_ros.nodes.input_thread.InputThread`: serialised bytes in, then
+:class:`~imu_calib_ros.core.imu_stream.ImuStream`, the compensator's code: checked, put back
+in stamp order within ``reorder_window_s`` (:mod:`imu_calib_ros.core.reorder`, issue 17),
+compensated; published as bytes, tens of microseconds), which queues the sample; the rest
+spins in a SingleThreadedExecutor, where a 20 Hz timer hands the queue, as an ``ImuBatch``
+and ``JointBatch`` arrays, to an :class:`~imu_calib_ros.core.estimator.runner.EstimatorRunner`
+(a child process by default, or a thread), whose bounded queue drops and counts under
+overload. Faults (issue 6): see
 docs/NODES.md.
 """
 from __future__ import annotations
@@ -61,12 +63,12 @@ from ..core.errors import ImuCalibError
 from ..core.estimator.config import EstimatorConfig
 from ..core.estimator.runner import EstimatorRunner, Snapshot
 from ..core.estimator.selfcheck import saved_extra
+from ..core.imu_stream import ImuStream, Step
 from ..core.input_guard import rejection_counts
-from ..core.reorder import ReorderBuffer
 from ..core.stream_compensation import StreamCompensation
-from ..core.types import JointSample
-from .common import (Endpoint, NodeInterface, declare_config, diag9, finite, finite3,
-                     latched_qos, quiet_publisher, reliable_qos, run_node, sensor_qos)
+from ..core.types import ImuBatch, JointBatch, JointSample
+from .common import (Endpoint, NodeInterface, declare_config, diag9, finite, latched_qos,
+                     quiet_publisher, reliable_qos, run_node, sensor_qos)
 from .fixture_source import load_node_fixture, urdf_field
 from .input_thread import InputThread
 
@@ -203,7 +205,6 @@ class CalibrationNode(Node):
         self.fixture = load_node_fixture(self, cfg)
         self.grade = load_grade(cfg.imu_grade) if cfg.imu_grade else None
         self.joint_names = tuple(self.fixture.joint_names)
-        self.frame_id = cfg.frame_id
         prior = CalibrationEstimator(self.fixture, self.grade, cfg.estimator).estimate(
             frame_id=cfg.frame_id or 'imu_link')
         self.compensation = StreamCompensation(
@@ -212,28 +213,26 @@ class CalibrationNode(Node):
             prior, self.grade.gyro_noise_rad_s_rt_hz if self.grade else 0.0,
             self.grade.accel_noise_m_s2_rt_hz if self.grade else 0.0,
             1.0 / cfg.imu_rate_hz if cfg.imu_rate_hz > 0 else 0.0)
-        self._rate_known = False
+        # raw IMU checked, back in stamp order, compensated (the compensator's code too); the
+        # first frame is adopted when frame_id is empty
+        self.stream = ImuStream(self.compensation, cfg.frame_id, cfg.reorder_window_s,
+                                adopt_frame=True)
         self.runner = EstimatorRunner(cfg.estimator_mode,
                                       (self.fixture, cfg.imu_grade, cfg.estimator),
                                       cfg.frame_id or 'imu_link', cfg.estimator_queue_batches)
         self._good_seq = -1
-        # filled by the IMU input thread and the joint callback, drained by the filter timer
-        self._pending: collections.deque[tuple[int, Any, Any] | JointSample] = collections.deque()
-        # raw IMU back in stamp order (IMU input thread); a time jump or reset sets the flag
-        self._reorder: ReorderBuffer[tuple[str, Any, Any]] = ReorderBuffer(cfg.reorder_window_s)
-        self._reorder_reset = False
+        # filled by the IMU input thread and the joint thread, drained by the filter timer
+        self._pending_imu: collections.deque[tuple[int, Any, Any]] = collections.deque()
+        self._pending_joints: collections.deque[JointSample] = collections.deque()
         self.counts = {'imu': 0, 'joint': 0, 'published': 0, 'missing_imu': 0,
                        'missing_joint': 0, 'time_jumps_backward': 0}
         self._joint_gaps = StampGapCounter()  # joint states lost upstream, from stamp gaps
-        self.rejected = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0, 'bad_message': 0,
-                         'joint_names': 0, 'compensation_non_finite': 0}
+        # joint states rejected here (the IMU's: self.stream.rejected; both in self.rejected)
+        self._joint_rejected = {'bad_message': 0, 'joint_names': 0, 'non_finite': 0}
         self._logged: dict[str, tuple[int, float]] = {}  # reason -> (count, monotonic time)
-        self._frame_seen = ''  # the last rejected header.frame_id
         self._frame_mark = (0, 0)  # (imu, rejected frame_id) at the last diagnostics
         self._frame_error = ''
         self._rate_mark: tuple[int, int, Any] = (0, 0, None)
-        self._last_imu_ns: int | None = None
-        self._first_imu_ns: int | None = None
         self._joint_ok = False
         self._last_joint_ns: int | None = None  # stamp of the last good joint state
         self._last_rx: Any = None  # rclpy Time of the last raw IMU message
@@ -267,79 +266,62 @@ class CalibrationNode(Node):
             f'estimator in a {cfg.estimator_mode}, output '
             f'{cfg.output_file}')
 
-    # ------------------------------------------------------------------ input callbacks
-    def _reject(self, reason: str) -> None:
-        self.rejected[reason] += 1
+    # ------------------------------------------------------------------ state views
+    @property
+    def frame_id(self) -> str:
+        """The IMU frame accepted (the configured one, else the first sample's)."""
+        return self.stream.frame_id
 
+    @property
+    def rejected(self) -> dict[str, int]:
+        """What this node rejected, by reason (IMU and joint states)."""
+        imu, joint = self.stream.rejected, self._joint_rejected
+        return {'frame_id': imu['frame_id'],
+                'non_finite': imu['non_finite'] + joint['non_finite'],
+                'out_of_order': imu['out_of_order'],
+                'bad_message': imu['bad_message'] + joint['bad_message'],
+                'joint_names': joint['joint_names'],
+                'compensation_non_finite': imu['compensation_non_finite']}
+
+    # ------------------------------------------------------------------ input callbacks
     def _on_imu(self, data: bytes) -> None:
-        """One raw IMU message (serialised bytes; runs in the IMU input thread), checked, then
-        held by the reorder window until it is in stamp order (:meth:`_on_ordered_imu`)."""
+        """One raw IMU message (serialised bytes; runs in the IMU input thread): decoded, then
+        :class:`ImuStream` (checks, reorder window, compensation); see :meth:`_take`."""
         self.counts['imu'] += 1
         self._last_rx = self.get_clock().now()
         try:
             ns, frame, gyro, accel = imu_fields_from_cdr(data)
         except ImuCalibError:
-            return self._reject('bad_message')
-        if frame != self.frame_id:
-            if self.frame_id:
-                self._frame_seen = frame
-                return self._reject('frame_id')
-            self.frame_id = frame
-            self.runner.set_frame_id(frame)
-        if not finite3(gyro, accel):
-            return self._reject('non_finite')
-        self._check_reorder_reset()
-        for ns, (frame, gyro, accel) in self._reorder.push(ns, (frame, gyro, accel),
-                                                           time.monotonic_ns()):
-            self._on_ordered_imu(ns, frame, gyro, accel)
-
-    def _check_reorder_reset(self) -> None:
-        if self._reorder_reset:  # the clock jumped back, or ~/reset: forget what was held
-            self._reorder_reset = False
-            self._reorder.reset()
+            self.stream.reject('bad_message')
+            return
+        self._take(self.stream.push(ns, frame, gyro, accel, time.monotonic_ns()))
 
     def _release_held(self) -> float | None:
         """IMU input thread, after each burst: the samples whose reorder wait is over (the
         stream paused); returns the seconds until the next one is due."""
-        self._check_reorder_reset()
-        for ns, (frame, gyro, accel) in self._reorder.release(time.monotonic_ns()):
-            self._on_ordered_imu(ns, frame, gyro, accel)
-        due = self._reorder.due_ns()
+        self._take(self.stream.release(time.monotonic_ns()))
+        due = self.stream.due_ns()
         return None if due is None else (due - time.monotonic_ns()) * 1e-9
 
-    def _on_ordered_imu(self, ns: int, frame: str, gyro: Any, accel: Any) -> None:
-        """A raw IMU sample in stamp order, or too late for the window (rejected here)."""
-        last = self._last_imu_ns
-        if last is not None:
-            if ns <= last:
-                return self._reject('out_of_order')
-            period = self.compensation.nominal_period_s  # None until detected
-            if period is not None and ns - last > 1.5e9 * period:  # lost upstream or in DDS
-                self.counts['missing_imu'] += round((ns - last) * 1e-9 / period) - 1
-        else:
-            self._first_imu_ns = self._first_imu_ns or ns
-        self._last_imu_ns = ns
-        omega, f, gvar, avar = self.compensation(ns, gyro, accel)
-        if finite3(omega, f, gvar, avar):  # never a NaN out of a publisher
-            self._pub.publish(imu_cdr(ns, frame, omega, f, diag9(gvar), diag9(avar)))
-            self.counts['published'] += 1
-        else:
-            self._reject('compensation_non_finite')
-        if not self._rate_known and self.compensation.measured_period_s is not None:
+    def _take(self, step: Step) -> None:
+        """Publish what the stream accepted (compensated), queue it for the estimator."""
+        if step.adopted_frame:
+            self.runner.set_frame_id(step.adopted_frame)
+        for c in step.accepted:
+            if c.values is not None:  # else rejected as compensation_non_finite
+                omega, f, gvar, avar = c.values
+                self._pub.publish(imu_cdr(c.stamp_ns, c.frame_id, omega, f, diag9(gvar),
+                                          diag9(avar)))
+                self.counts['published'] += 1
+            self._pending_imu.append((c.stamp_ns, c.gyro, c.accel))  # cheap to queue
+        self.counts['missing_imu'] = self.stream.missing
+        if step.rate_known:
             self._on_rate_known()
-        self._pending.append((ns, gyro, accel))  # an IMU sample, cheap to pickle
 
     def _on_rate_known(self) -> None:
-        """Once the IMU period is measured (IMU thread): count the samples missing among the
-        intervals it was measured from (when it was not configured), log the rate; one WARN
-        when a configured rate is more than 20 % off."""
-        self._rate_known = True
+        """Once the IMU period is measured (IMU thread): log the rate; one WARN when a
+        configured rate is more than 20 % off."""
         comp = self.compensation
-        period = comp.nominal_period_s
-        if comp.configured_period_s == 0.0 and period:
-            self.counts['missing_imu'] += sum(round(d * 1e-9 / period) - 1
-                                              for d in comp.intervals_ns
-                                              if d > 1.5e9 * period)
         assert comp.measured_period_s is not None
         if comp.rate_mismatch:
             self.get_logger().warn(comp.rate_mismatch)
@@ -352,45 +334,52 @@ class CalibrationNode(Node):
         try:
             sample = joint_sample_from_msg(msg)
         except ImuCalibError:
-            return self._reject('bad_message')
+            self._joint_rejected['bad_message'] += 1
+            return
         if not all(n in sample.names for n in self.joint_names):
             self._joint_names_seen = sample.names
-            return self._reject('joint_names')
+            self._joint_rejected['joint_names'] += 1
+            return
         if not finite(sample.positions_rad):
-            return self._reject('non_finite')
+            self._joint_rejected['non_finite'] += 1
+            return
         self._joint_ok = True
         self._last_joint_ns = sample.stamp_ns
         self.counts['missing_joint'] += self._joint_gaps.push(sample.stamp_ns)
-        self._pending.append(sample)
+        self._pending_joints.append(sample)
 
     def _on_time_jump(self, jump: Any) -> None:
         """``/clock`` went backward (a looping bag): restart navigation, keep calibration."""
         if jump.delta.nanoseconds >= 0:
             return
         self.counts['time_jumps_backward'] += 1
-        self._reorder_reset = True
-        self._pending.clear()
-        self._last_imu_ns = None
+        self._clear_pending()
+        self.stream.restart()
         self._last_joint_ns = None
         self._joint_gaps.reset()
-        self.compensation.reset()
         self.runner.command('reset_navigation')
         self.get_logger().warn(f'time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: '
                                'estimator navigation restarted (calibration kept)')
 
     # ------------------------------------------------------------------ estimator
     def _hand_over(self) -> None:
-        """Queued samples to the estimator (stamp order), newest snapshot to the stream."""
-        if self._pending:
-            items = [self._pending.popleft() for _ in range(len(self._pending))]
-            # stable: joint before IMU at equal stamps kept
-            items.sort(key=lambda s: s.stamp_ns if isinstance(s, JointSample) else s[0])
-            self.runner.submit(items)
+        """Queued samples to the estimator (each kind in stamp order, as arrays: one
+        :class:`ImuBatch`, a :class:`JointBatch` per joint-name list), newest snapshot to the
+        stream."""
+        imu = [self._pending_imu.popleft() for _ in range(len(self._pending_imu))]
+        joints = [self._pending_joints.popleft() for _ in range(len(self._pending_joints))]
+        if imu or joints:
+            self.runner.submit(ImuBatch.from_rows(imu, self.frame_id or 'imu_link'),
+                               JointBatch.runs(joints))
         self.runner.poll()
         good = self.runner.last_good
         if good is not None and good.seq != self._good_seq:
             self._good_seq = good.seq
             self.compensation.update(good.result)
+
+    def _clear_pending(self) -> None:
+        self._pending_imu.clear()
+        self._pending_joints.clear()
 
     def _on_filter_timer(self) -> None:
         self._hand_over()
@@ -403,7 +392,7 @@ class CalibrationNode(Node):
         diverged = snap.diverged or bool(self.runner.latest and self.runner.latest.diverged)
         if not (finite(result.errors.as_vector()) and finite(result.sigma.as_vector())):
             return  # never a NaN out of a publisher; diagnostics say ERROR
-        stamp = time_msg_from_ns(self._last_imu_ns) if self._last_imu_ns else \
+        stamp = time_msg_from_ns(self.stream.last_ns) if self.stream.last_ns else \
             self.get_clock().now().to_msg()
         arr = DiagnosticArray()
         arr.header.stamp = stamp
@@ -448,7 +437,8 @@ class CalibrationNode(Node):
 
     def _hint(self, reason: str) -> str:
         if reason == 'node.frame_id':
-            return f'; received "{self._frame_seen}", expected frame_id "{self.frame_id}"'
+            return (f'; received "{self.stream.rejected_frame}", expected frame_id '
+                    f'"{self.frame_id}"')
         if reason == 'node.joint_names':
             seen = getattr(self, '_joint_names_seen', ())
             return f'; expected joints {list(self.joint_names)}, got {list(seen)}'
@@ -477,8 +467,8 @@ class CalibrationNode(Node):
             values['joint_rate_hz'] = f'{(joint_n - last_joint) / dt:.1f}'
         reasons = self.reasons(health)
         values.update({f'rejected.{k}': str(v) for k, v in reasons.items()})
-        values.update({f'reorder.{k}': str(v) for k, v in self._reorder.stats.as_dict().items()
-                       if v})
+        values.update({f'reorder.{k}': str(v)
+                       for k, v in self.stream.reorder.stats.as_dict().items() if v})
         values.update(health_values(health))
         values['estimator_alive'] = str(self.runner.alive)
         account = self.account(health, snap)
@@ -501,7 +491,7 @@ class CalibrationNode(Node):
         self._frame_mark = (imu_n, frame_n)
         if imu_n > last_imu:
             self._frame_error = frame_mismatch(imu_n - last_imu, frame_n - last_frame,
-                                               self._frame_seen, self.frame_id)
+                                               self.stream.rejected_frame, self.frame_id)
 
     def stopped(self, snap: Snapshot | None) -> str:
         """Why the estimator stopped ('' = it runs): its process died, it diverged, or its
@@ -545,13 +535,13 @@ class CalibrationNode(Node):
         if self._frame_error:
             return DiagnosticStatus.ERROR, self._frame_error
         expected = ', '.join(self.joint_names)
-        if not self._joint_ok and self._first_imu_ns is not None and self._last_imu_ns and \
-                (self._last_imu_ns - self._first_imu_ns) * 1e-9 > self.config.joint_timeout_s:
+        if not self._joint_ok and self.stream.first_ns is not None and self.stream.last_ns and \
+                (self.stream.last_ns - self.stream.first_ns) * 1e-9 > self.config.joint_timeout_s:
             msg = (f'no joint_states with the fixture joints [{expected}] after '
                    f'{self.config.joint_timeout_s:g} s of IMU data')
             self.get_logger().error(msg, throttle_duration_sec=self.config.log_throttle_s)
             return DiagnosticStatus.ERROR, msg
-        last_j, last_i = self._last_joint_ns, self._last_imu_ns
+        last_j, last_i = self._last_joint_ns, self.stream.last_ns
         if self._joint_ok and last_j is not None and last_i is not None and \
                 (last_i - last_j) * 1e-9 > self.config.joint_timeout_s:
             msg = (f'joint_states stopped: none with the fixture joints [{expected}] for '
@@ -624,11 +614,12 @@ class CalibrationNode(Node):
         return response
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        self._pending.clear()
-        self._reorder_reset = True
+        self._clear_pending()
+        self.stream.restart()
         ok = self.runner.request('reset', 30.0)
-        self.rejected = {k: 0 for k in self.rejected}
-        self._last_imu_ns = None
+        self.stream.reset_counts()
+        self._joint_rejected = {k: 0 for k in self._joint_rejected}
+        self.stream.last_ns = None
         self._last_joint_ns = None
         self._joint_gaps.reset()
         self.compensation.reset()

@@ -15,7 +15,6 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -25,13 +24,18 @@ from msg_adapters.convert import imu_cdr, imu_fields_from_cdr
 
 from ..core.calibration import CalibrationResult
 from ..core.errors import ConfigError, ImuCalibError
-from ..core.reorder import ReorderBuffer
+from ..core.imu_stream import ImuStream, Step
 from ..core.stream_compensation import StreamCompensation
-from .common import (Endpoint, NodeInterface, declare_config, diag9, finite3, quiet_publisher,
+from .common import (Endpoint, NodeInterface, declare_config, diag9, quiet_publisher,
                      reliable_qos, run_node, sensor_qos)
 from .input_thread import InputThread
 
 NODE_NAME = 'compensator'
+
+#: the log line's detail of a dropped raw sample, by reason (ImuStream's)
+_DETAIL = {'bad_message': 'not a CDR sensor_msgs/Imu', 'non_finite': 'non-finite value',
+           'out_of_order': 'stamp not after the previous one',
+           'compensation_non_finite': 'compensation not finite'}
 
 
 @dataclass(frozen=True)
@@ -92,12 +96,10 @@ class CompensatorNode(Node):
         self.compensation = StreamCompensation(
             self.calibration, gyro_n, accel_n,
             1.0 / cfg.imu_rate_hz if cfg.imu_rate_hz > 0 else 0.0)
-        self._rate_known = False
-        self.rejected: dict[str, int] = {'frame_id': 0, 'non_finite': 0, 'out_of_order': 0,
-                                         'compensation_non_finite': 0, 'bad_message': 0}
+        # the calibration node's per-sample code; only the calibration's frame is accepted
+        self.stream = ImuStream(self.compensation, self.calibration.frame_id,
+                                cfg.reorder_window_s)
         self.published = 0
-        self._last_stamp_ns: int | None = None
-        self._reorder: ReorderBuffer[tuple[str, Any, Any]] = ReorderBuffer(cfg.reorder_window_s)
         self._pub = self.create_publisher(Imu, 'imu/data_corrected',
                                           reliable_qos(cfg.queue_depth))
         self._sub = InputThread(self, Imu, 'imu/data_raw', self._on_imu,
@@ -108,48 +110,46 @@ class CompensatorNode(Node):
         self.get_logger().info(f'applying {cfg.calibration_file} (frame '
                                f'"{self.calibration.frame_id}")')
 
-    def _reject(self, reason: str, detail: str) -> None:
-        self.rejected[reason] += 1
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Dropped raw samples by reason."""
+        r = self.stream.rejected
+        return {k: r[k] for k in ('frame_id', 'non_finite', 'out_of_order',
+                                  'compensation_non_finite', 'bad_message')}
+
+    def _reject(self, detail: str) -> None:
         self.get_logger().warn(f'dropped raw IMU sample: {detail}', throttle_duration_sec=5.0)
 
     def _on_imu(self, data: bytes) -> None:
-        """One raw IMU message (serialised bytes; runs in the IMU input thread), checked, then
-        held by the reorder window until it is in stamp order (:meth:`_on_ordered_imu`)."""
+        """One raw IMU message (serialised bytes; runs in the IMU input thread): decoded, then
+        :class:`ImuStream` (checks, reorder window, compensation); see :meth:`_take`."""
         try:
             ns, frame, gyro, accel = imu_fields_from_cdr(data)
         except ImuCalibError:
-            return self._reject('bad_message', 'not a CDR sensor_msgs/Imu')
-        if frame != self.calibration.frame_id:
-            return self._reject('frame_id', f'frame "{frame}" is not the calibration\'s '
-                                            f'"{self.calibration.frame_id}"')
-        if not finite3(gyro, accel):
-            return self._reject('non_finite', 'non-finite value')
-        for ns, (frame, gyro, accel) in self._reorder.push(ns, (frame, gyro, accel),
-                                                           time.monotonic_ns()):
-            self._on_ordered_imu(ns, frame, gyro, accel)
+            return self._take(self.stream.reject('bad_message'))
+        self._take(self.stream.push(ns, frame, gyro, accel, time.monotonic_ns()))
 
     def _release_held(self) -> float | None:
         """IMU input thread, after each burst: the samples whose reorder wait is over (the
         stream paused); returns the seconds until the next one is due."""
-        for ns, (frame, gyro, accel) in self._reorder.release(time.monotonic_ns()):
-            self._on_ordered_imu(ns, frame, gyro, accel)
-        due = self._reorder.due_ns()
+        self._take(self.stream.release(time.monotonic_ns()))
+        due = self.stream.due_ns()
         return None if due is None else (due - time.monotonic_ns()) * 1e-9
 
-    def _on_ordered_imu(self, ns: int, frame: str, gyro: Any, accel: Any) -> None:
-        """A raw IMU sample in stamp order, or too late for the window (dropped here)."""
-        if self._last_stamp_ns is not None and ns <= self._last_stamp_ns:
-            return self._reject('out_of_order', 'stamp not after the previous one')
-        self._last_stamp_ns = ns
-        omega, f, gvar, avar = self.compensation(ns, gyro, accel)
-        if not finite3(omega, f, gvar, avar):  # never a NaN out of a publisher
-            return self._reject('compensation_non_finite', 'compensation not finite')
-        self._pub.publish(imu_cdr(ns, frame, omega, f, diag9(gvar), diag9(avar)))
-        self.published += 1
-        if not self._rate_known and self.compensation.measured_period_s is not None:
-            self._rate_known = True
-            if self.compensation.rate_mismatch:
-                self.get_logger().warn(self.compensation.rate_mismatch)
+    def _take(self, step: Step) -> None:
+        """Publish the compensated samples; log the dropped ones (throttled)."""
+        for r in step.rejected:
+            self._reject(f'frame "{r.frame_id}" is not the calibration\'s '
+                         f'"{self.calibration.frame_id}"' if r.reason == 'frame_id' else
+                         _DETAIL[r.reason])
+        for c in step.accepted:
+            if c.values is not None:
+                omega, f, gvar, avar = c.values
+                self._pub.publish(imu_cdr(c.stamp_ns, c.frame_id, omega, f, diag9(gvar),
+                                          diag9(avar)))
+                self.published += 1
+        if step.rate_known and self.compensation.rate_mismatch:
+            self.get_logger().warn(self.compensation.rate_mismatch)
 
     def _on_diag_timer(self) -> None:
         status = DiagnosticStatus(name=f'{self.get_name()}: IMU compensation',
@@ -163,7 +163,7 @@ class CompensatorNode(Node):
                          KeyValue(key='received', value=str(self._sub.messages))] + [
             KeyValue(key=f'rejected.{k}', value=str(v)) for k, v in self.rejected.items()] + [
             KeyValue(key=f'reorder.{k}', value=str(v))
-            for k, v in self._reorder.stats.as_dict().items()]
+            for k, v in self.stream.reorder.stats.as_dict().items()]
         if comp.measured_period_s is not None:
             status.values.append(KeyValue(key='imu_rate_measured_hz',
                                           value=f'{1.0 / comp.measured_period_s:.6g}'))

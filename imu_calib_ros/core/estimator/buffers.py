@@ -68,9 +68,10 @@ class JointBuffer:
     """Accepted joint states in fixture joint order, unwrapped, stamps in nanoseconds.
 
     ``t_ns`` and ``q_rad`` are plain lists (appending and trimming a list is cheaper than
-    re-allocating arrays; only the window a reader needs is converted). Counts land in
-    ``counters`` (``joint_samples``, ``joint_non_finite``, ``joint_out_of_order``): the
-    estimator's counter dict. The range of every joint's positions (``joint_travel_rad``) is
+    re-allocating arrays; only the window a reader needs is converted). Only samples the
+    input guard accepted come here (finite, stamps strictly increasing: it validates them,
+    this buffer does not again); ``counters['joint_samples']`` (the estimator's counter
+    dict) counts them. The range of every joint's positions (``joint_travel_rad``) is
     kept over the whole run, across :meth:`clear`.
     """
 
@@ -92,14 +93,7 @@ class JointBuffer:
 
     # ------------------------------------------------------------------ appending
     def append(self, stamp_ns: int, q: FloatArray) -> None:
-        """Add one sample, unwrapped against the previous one (non-finite or not newer than
-        the newest: counted and dropped)."""
-        if not np.all(np.isfinite(q)):
-            self.counters['joint_non_finite'] += 1
-            return
-        if self.t_ns and stamp_ns <= self.t_ns[-1]:
-            self.counters['joint_out_of_order'] += 1
-            return
+        """Add one sample the guard accepted, unwrapped against the previous one."""
         if self._last_q is not None:  # unwrap against the previous sample
             q = q + 2 * np.pi * np.round((self._last_q - q) / (2 * np.pi))
         self._last_q = q
@@ -115,10 +109,6 @@ class JointBuffer:
     def extend(self, t: IntArray, q: FloatArray) -> None:
         """:meth:`append` for many samples the guard accepted (finite, stamps strictly
         increasing and above every earlier accepted stamp), vectorised."""
-        if self.t_ns and int(t[0]) <= self.t_ns[-1]:  # cannot happen behind the guard
-            for ti, qi in zip(t.tolist(), q, strict=True):
-                self.append(ti, qi)
-            return
         two_pi = 2 * np.pi
         # unwrap: sample k moves by 2 pi m_k, m_k = m_(k-1) + round((q_(k-1) - q_k) / 2 pi);
         # np.unwrap's formula differs in the last bit, so the sequential rule is used and

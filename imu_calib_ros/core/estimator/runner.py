@@ -28,12 +28,12 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ..errors import ImuCalibError
-from ..types import ImuBatch, ImuSample, JointBatch, JointSample
+from ..types import ImuBatch, JointBatch
 
 #: ``health()`` values meaning the filter diverged (issue 6: windowed NIS, covariance not
 #: positive definite, states out of their physical range).
@@ -139,47 +139,26 @@ class _Serve:
         self._ran = False  # the filter ran at some point
         self._stop_ns: int | None = None  # IMU stamp when it stopped running (None: running)
 
-    def push(self, items: list[Any]) -> None:
-        """Push samples (already in stamp order) to the estimator as offline replay does: the
-        batch's joint states first (one :class:`JointBatch` per run of one name list), then
-        its IMU samples as one :class:`ImuBatch` (joint states early, never late; the
-        estimator's results do not depend on the batch sizes: the same computation as
-        ``imu-calib replay``, issue 16 item 10). Pushing each joint state between the IMU
-        samples around it split a 50 ms batch into runs of two samples, each paying the
-        input guard's and the ledger's fixed cost (issue 16 item 8).
-
-        IMU samples are :class:`ImuSample` or plain ``(stamp_ns, gyro (3,), accel (3,))``
-        tuples (cheap to pickle); joint samples are :class:`JointSample`.
+    def push(self, imu: ImuBatch, joints: Sequence[JointBatch] = ()) -> None:
+        """Push one batch of samples to the estimator as offline replay does: the joint
+        states first (one :class:`JointBatch` per run of one name list), then the IMU samples
+        (joint states early, never late; the estimator's results do not depend on the batch
+        sizes: the same computation as ``imu-calib replay``, issue 16 item 10). Pushing each
+        joint state between the IMU samples around it split a 50 ms batch into runs of two
+        samples, each paying the input guard's and the ledger's fixed cost (issue 16 item 8).
+        Each kind in stamp order; the estimator's input guard checks them.
         """
-        joints = [s for s in items if isinstance(s, JointSample)]
-        imu = [s for s in items if not isinstance(s, JointSample)]
         self.received_imu += len(imu)
-        self.received_joints += len(joints)
+        self.received_joints += sum(len(j) for j in joints)
         try:
-            start = 0
-            for k in range(1, len(joints) + 1):  # runs of one joint-name list
-                if k == len(joints) or joints[k].names != joints[start].names or \
-                        len(joints[k].positions_rad) != len(joints[start].positions_rad):
-                    run = joints[start:k]
-                    batch = JointBatch(np.array([j.stamp_ns for j in run], np.int64),
-                                       tuple(run[0].names),
-                                       np.array([np.asarray(j.positions_rad, float)
-                                                 for j in run]).reshape(len(run), -1))
-                    if self.ledger is not None:
-                        self.ledger.joints(batch)
-                    self.est.push_joint_batch(batch)
-                    start = k
-            if imu:
-                if isinstance(imu[0], ImuSample):
-                    ib = ImuBatch.from_samples(imu)
-                else:
-                    ib = ImuBatch(np.array([r[0] for r in imu], np.int64),
-                                  np.array([r[1] for r in imu], float).reshape(-1, 3),
-                                  np.array([r[2] for r in imu], float).reshape(-1, 3),
-                                  self.frame_id)
+            for batch in joints:
                 if self.ledger is not None:
-                    self.ledger.imu(ib)
-                self.est.push_imu_batch(ib)
+                    self.ledger.joints(batch)
+                self.est.push_joint_batch(batch)
+            if len(imu):
+                if self.ledger is not None:
+                    self.ledger.imu(imu)
+                self.est.push_imu_batch(imu)
         except ImuCalibError as exc:
             self.error = f'estimator refused input: {exc}'
         except Exception as exc:  # noqa: BLE001 - report, never kill the worker (a dead
@@ -187,12 +166,12 @@ class _Serve:
             self.error = f'estimator failed: {type(exc).__name__}: {exc}'
         self._note_running(imu)
 
-    def _note_running(self, imu: list[Any]) -> None:
+    def _note_running(self, imu: ImuBatch) -> None:
         """Remember since which IMU stamp the filter is not running (after it ran: a gap
         re-initialised the navigation and no stationary window came to re-align it)."""
-        if imu:
-            last = imu[-1].stamp_ns if isinstance(imu[-1], ImuSample) else imu[-1][0]
-            self.last_imu_ns = max(int(last), self.last_imu_ns or int(last))
+        if len(imu):
+            last = int(imu.stamps_ns[-1])
+            self.last_imu_ns = max(last, self.last_imu_ns or last)
         if bool(getattr(self.est, 'is_running', True)):
             self._ran, self._stop_ns = True, None
         elif self._ran and self._stop_ns is None:
@@ -248,7 +227,7 @@ class _Serve:
         """One queue message; False means stop."""
         kind = msg[0]
         if kind == 'data':
-            self.push(msg[1])
+            self.push(msg[1], msg[2])
             self.snapshot()
         elif kind == 'health':  # the node's diagnostics: the counts of the last input too
             self.snapshot(health_now=True)
@@ -426,15 +405,17 @@ class EstimatorRunner:
         """False if the worker died (a crashed child process)."""
         return bool(self._worker.is_alive())
 
-    def submit(self, items: list[Any]) -> bool:
-        """Queue samples (stamp order, see :meth:`_Serve.push`) for the estimator; False (and
-        the IMU samples counted in :attr:`dropped`) if the queue is full."""
-        if not items:
+    def submit(self, imu: ImuBatch, joints: Sequence[JointBatch] = ()) -> bool:
+        """Queue one IMU batch and the joint batches of the same period (each in stamp
+        order, see :meth:`_Serve.push`) for the estimator; False (and the IMU samples
+        counted in :attr:`dropped`) if the queue is full."""
+        joints = [j for j in joints if len(j)]
+        if not len(imu) and not joints:
             return True
         try:
-            self._in.put_nowait(('data', items))
+            self._in.put_nowait(('data', imu, joints))
         except queue.Full:
-            self.dropped += sum(1 for s in items if not isinstance(s, JointSample))
+            self.dropped += len(imu)
             return False
         return True
 
