@@ -103,7 +103,7 @@ def run_and_save(ros: Node, tmp: Path, force: bool) -> tuple[Any, str, int | Non
 
 def test_a_run_failing_its_self_check_is_not_saved(ros: Node, tmp_path: Path) -> None:
     resp, log, status, out = run_and_save(ros, tmp_path, force=False)
-    assert resp is not None and not resp.success, resp
+    assert resp is not None and not resp.success, (resp, log[-3000:])
     assert 'self-check failed' in resp.message and 'force_save' in resp.message, resp.message
     assert status == 1, log[-2000:]  # the refused save on shutdown
     assert 'save on shutdown: not saved, self-check failed' in log, log[-2000:]
@@ -114,8 +114,16 @@ def test_a_run_failing_its_self_check_is_not_saved(ros: Node, tmp_path: Path) ->
 def test_force_save_writes_it_marked_as_failing(ros: Node, tmp_path: Path) -> None:
     from imu_calib_ros.core.calibration import CalibrationResult
     resp, log, status, out = run_and_save(ros, tmp_path, force=True)
-    assert resp is not None and resp.success, resp
-    assert 'FAILED its self-check' in resp.message, resp.message
+    assert resp is not None, log[-3000:]
+    if not resp.success:
+        # a loaded machine lost samples and the filter had just diverged at the service's
+        # save: refused with that reason (never 'no data'); the save on shutdown, after the
+        # restart, writes it marked (checked below)
+        assert resp.message.startswith('nothing to save yet: the estimator diverged'), \
+            (resp, log[-3000:])
+        assert 'FAILED its self-check: written because of force_save' in log, log[-3000:]
+    else:
+        assert 'FAILED its self-check' in resp.message, resp.message
     assert status == 0, log[-2000:]
     v = CalibrationResult.load(out).extra['provenance']['self_check']
     assert v['passed'] is False and v['forced'] is True, v

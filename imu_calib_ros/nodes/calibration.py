@@ -582,6 +582,14 @@ class CalibrationNode(Node):
         if not health.get('imu_processed', 0):
             # a file of prior values would look like a calibration: refuse (README: never
             # silently wrong)
+            lh = dict(latest.health) if latest is not None and latest.health else {}
+            if latest is not None and latest.diverged and lh.get('imu_processed', 0):
+                # the filter ran and diverged before its first good snapshot (a loaded
+                # machine lost samples): say so, not 'no data'
+                return False, ('nothing to save yet: the estimator diverged ('
+                               f'{lh.get("divergence_reason") or "see its diagnostics"}) before '
+                               'a good estimate and restarts from its coarse start with the '
+                               'next data')
             return False, ('nothing to save: the estimator has not used any IMU data yet '
                            f'({health.get("imu_samples", 0)} samples received; it starts at a '
                            'stationary window with joint states)')
