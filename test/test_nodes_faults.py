@@ -165,10 +165,12 @@ def test_samples_lost_upstream_are_counted(ros: Node, tmp_path: Path) -> None:
         assert spin_until(ros, lambda: len(w.corrected) >= len(good), 30.0), \
             f'{len(w.corrected)} of {len(good)}'
 
-        def counted() -> bool:
+        def counted() -> bool:  # a status taken after the last sample was published too
             s = last_status(w.diags)
-            return s is not None and values_of(s).get('imu') == str(len(good))
-        assert spin_until(ros, counted, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
+            v = values_of(s) if s is not None else {}
+            return v.get('imu') == str(len(good)) and v.get('published') == str(len(good))
+        assert spin_until(ros, counted, 30.0), \
+            values_of(last_status(w.diags)) if w.diags else 'no diagnostics'
         values = values_of(last_status(w.diags))
     finally:
         log = stop(proc)
