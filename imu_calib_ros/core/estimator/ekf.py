@@ -223,7 +223,8 @@ class ErrorStateFilter:
         """
         P = self.P
         PHt = P @ H_s.T  # (N, m)
-        S = H_s @ PHt + R
+        HPHt = H_s @ PHt
+        S = HPHt + R
         c = self.counters
         chol, info = _potrf(S)
         y = z - H_s @ self.x
@@ -237,12 +238,12 @@ class ErrorStateFilter:
         passed = bool(np.isfinite(nis) and nis <= gate)
         if not passed:
             c.rejected[kind] = c.rejected.get(kind, 0) + 1
-            lam = (deweight_factor(S - R, R, y, gate)
+            lam = (deweight_factor(HPHt, R, y, gate)
                    if self.deweight and np.isfinite(nis) else np.inf)
             if not np.isfinite(lam):
                 return False
             R = lam * R
-            chol, info = _potrf(H_s @ PHt + R)
+            chol, info = _potrf(HPHt + R)
             if info != 0:
                 return False
             S_inv_y = _potrs(chol, y)[0]
