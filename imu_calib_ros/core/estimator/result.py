@@ -109,22 +109,36 @@ def calibration_result(st: Estimate, layout: StateLayout, prior: dict[str, Float
                              extra=extra_of(sd))
 
 
+_PARAMETER_MAPS: dict[tuple[str, ...], FloatArray] = {}
+
+
+def _parameter_map(layout: StateLayout) -> FloatArray:
+    """``d SensorErrors.as_vector() / d (calibration states)`` (45, n - 6), built once per
+    layout column by column through :func:`with_values` and ``errors_from_theta`` (every
+    live snapshot asks for it; the layout never changes within a run)."""
+    key = tuple(layout.state_labels)
+    J = _PARAMETER_MAPS.get(key)
+    if J is None:
+        zg, za, z3 = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), np.zeros(3)
+        m = layout.n - 6
+        J = np.zeros((sm.N_PARAMETERS, m))
+        for j in range(m):
+            e = np.zeros(m)
+            e[j] = 1.0
+            tg, ta, _, _ = with_values(layout, e, zg, za, z3, z3)
+            J[:, j] = em.errors_from_theta(tg, ta, sm.SensorErrors).as_vector()
+        J.setflags(write=False)
+        _PARAMETER_MAPS[key] = J
+    return J
+
+
 def parameter_covariance(st: Estimate, layout: StateLayout,
                          prior: dict[str, FloatArray]) -> FloatArray:
     """Covariance (45, 45) of ``SensorErrors.as_vector()`` (CONTRACT 4 order): the filter's
     for the estimated groups (their correlations included), the prior variance on the
     diagonal for groups held fixed. The map from the calibration states is linear (a
-    selection; the gyro misalignment pair is one state), built column by column through
-    :func:`with_values` and ``errors_from_theta``."""
-    zg, za = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
-    z3 = np.zeros(3)
-    m = layout.n - 6
-    J = np.zeros((sm.N_PARAMETERS, m))
-    for j in range(m):
-        e = np.zeros(m)
-        e[j] = 1.0
-        tg, ta, _, _ = with_values(layout, e, zg, za, z3, z3)
-        J[:, j] = em.errors_from_theta(tg, ta, sm.SensorErrors).as_vector()
+    selection; the gyro misalignment pair is one state, :func:`_parameter_map`)."""
+    J = _parameter_map(layout)
     cov = J @ st.covariance @ J.T
     sig_g, sig_a = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
     for grp in em.GYRO_GROUPS:
