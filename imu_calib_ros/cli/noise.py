@@ -96,7 +96,7 @@ def accumulate_windows(bag: str, imu_topic: str, joint_topic: str, min_static_s:
     :data:`STATIC_TOL_RAD` for ``min_static_s``: ``coarse.static_windows``), one segment each."""
     import numpy as np
 
-    from ..core.allan import AllanAccumulator
+    from ..core.allan import windows_accumulator
     from ..core.estimator.coarse import static_windows
     from msg_adapters.bag import read_bag
     imu, joints = read_bag(bag, imu_topic, joint_topic)
@@ -109,12 +109,10 @@ def accumulate_windows(bag: str, imu_topic: str, joint_topic: str, min_static_s:
     if not wins:
         raise InputError(f'{bag}: no stationary window of {min_static_s:g} s (every joint '
                          f'still within {STATIC_TOL_RAD:g} rad); --static for a static record')
-    acc = AllanAccumulator(float(np.median(np.diff(t))) * 1e-9, 6)
-    for w in wins:
-        k0, k1 = np.searchsorted(t, [w.t0_ns, w.t1_ns])
-        acc.add(np.hstack([imu.gyro_rad_s[k0:k1], imu.accel_m_s2[k0:k1]]))
-        acc.new_segment()
-    return acc, len(wins)
+    ranges = [(int(np.searchsorted(t, w.t0_ns)), int(np.searchsorted(t, w.t1_ns)))
+              for w in wins]
+    return windows_accumulator(imu.gyro_rad_s, imu.accel_m_s2,
+                               float(np.median(np.diff(t))) * 1e-9, ranges), len(wins)
 
 
 def _write_yaml(path: Path, data: Any, comments: list[str]) -> None:

@@ -185,3 +185,15 @@ def allan_curve(y: ArrayLike, tau0_s: float) -> AllanCurve:
     for a in range(0, len(y), 1 << 16):
         acc.add(y[a:a + (1 << 16)])
     return acc.curve()
+
+
+def windows_accumulator(gyro: FloatArray, accel: FloatArray, tau0_s: float,
+                        windows: list[tuple[int, int]]) -> AllanAccumulator:
+    """The six channels (gyro, accelerometer) of the sample ranges ``[(i0, i1), ...]`` (the
+    stationary windows of a calibration run), one segment each: no difference spans two
+    windows (their attitudes differ)."""
+    acc = AllanAccumulator(tau0_s, 6)
+    for i0, i1 in windows:
+        acc.add(np.hstack([gyro[i0:i1], accel[i0:i1]]))
+        acc.new_segment()
+    return acc

@@ -36,16 +36,12 @@ def windows_noise(gyro: FloatArray, accel: FloatArray, dt_s: float,
     deviation (one segment per window) and IEEE 952 fit as ``imu-calib noise`` on a
     calibration bag (:func:`~imu_calib_ros.core.noise_characterisation.characterise`); None
     when no window holds 12 samples."""
-    from ..core.allan import AllanAccumulator
+    from ..core.allan import windows_accumulator
     from ..core.noise_characterisation import characterise
     wins = [(a, b) for a, b in windows if b - a >= 12]
     if not wins:
         return None
-    acc = AllanAccumulator(dt_s, 6)
-    for a, b in wins:
-        acc.add(np.hstack([gyro[a:b], accel[a:b]]))
-        acc.new_segment()
-    curve = acc.curve()
+    curve = windows_accumulator(gyro, accel, dt_s, wins).curve()
     if len(curve.tau_s) < 2:
         return None
     return characterise(curve, f'{len(wins)} stationary windows')
