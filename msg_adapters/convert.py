@@ -150,6 +150,13 @@ def _is_typestore(target: Any) -> bool:
     return hasattr(target, 'types') and hasattr(target, 'serialize_cdr')
 
 
+def _typestore_header(types: Any, sec: int, nanosec: int, frame_id: str) -> Any:
+    """A rosbags ``std_msgs/Header`` (the Imu and JointState builders' shared part)."""
+    return types['std_msgs/msg/Header'](
+        stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
+        frame_id=frame_id)
+
+
 def _rclpy_types() -> Any:
     """The rclpy message modules, imported on first use only."""
     try:
@@ -209,9 +216,7 @@ def imu_msg_from_sample(sample: ImuSample, target: Any = None,
     if _is_typestore(target):
         t = target.types
         return t[IMU_MSGTYPE](
-            header=t['std_msgs/msg/Header'](
-                stamp=t['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
-                frame_id=fid),
+            header=_typestore_header(t, sec, nanosec, fid),
             orientation=t['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0),
             orientation_covariance=_ORIENTATION_COV.copy(),
             angular_velocity=t['geometry_msgs/msg/Vector3'](
@@ -253,9 +258,7 @@ def joint_state_msg_from_sample(sample: JointSample, target: Any = None,
     if _is_typestore(target):
         t = target.types
         return t[JOINT_STATE_MSGTYPE](
-            header=t['std_msgs/msg/Header'](
-                stamp=t['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
-                frame_id=frame_id),
+            header=_typestore_header(t, sec, nanosec, frame_id),
             name=names, position=pos.copy(), velocity=vel.copy(), effort=np.zeros(0))
     Time, _, JointState = _rclpy_types()
     msg = JointState()
