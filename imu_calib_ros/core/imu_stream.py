@@ -135,6 +135,11 @@ class ImuStream:
         """The clock at which :meth:`release` may let a held sample out (None: none held)."""
         return self.reorder.due_ns()
 
+    def seconds_to_due(self, clock_ns: int) -> float | None:
+        """Seconds from ``clock_ns`` until :meth:`due_ns` (None: none held)."""
+        due = self.reorder.due_ns()
+        return None if due is None else (due - clock_ns) * 1e-9
+
     # ------------------------------------------------------------------ samples
     def push(self, stamp_ns: int, frame_id: str, gyro: Vec3, accel: Vec3,
              clock_ns: int) -> Step:

@@ -55,8 +55,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
-from msg_adapters.convert import (imu_cdr, imu_fields_from_cdr, joint_sample_from_msg,
-                                  time_msg_from_ns)
+from msg_adapters.convert import imu_fields_from_cdr, joint_sample_from_msg, time_msg_from_ns
 
 from ..core.diagnostics import StampGapCounter, frame_mismatch, health_values, input_account
 from ..core.errors import ImuCalibError
@@ -67,8 +66,8 @@ from ..core.imu_stream import ImuStream, Step
 from ..core.input_guard import rejection_counts
 from ..core.stream_compensation import StreamCompensation
 from ..core.types import ImuBatch, JointBatch, JointSample
-from .common import (Endpoint, NodeInterface, declare_config, diag9, finite, latched_qos,
-                     quiet_publisher, reliable_qos, run_node, sensor_qos)
+from .common import (Endpoint, NodeInterface, declare_config, finite, latched_qos,
+                     publish_corrected, quiet_publisher, reliable_qos, run_node, sensor_qos)
 from .fixture_source import load_node_fixture, urdf_field
 from .input_thread import InputThread
 
@@ -300,18 +299,14 @@ class CalibrationNode(Node):
         """IMU input thread, after each burst: the samples whose reorder wait is over (the
         stream paused); returns the seconds until the next one is due."""
         self._take(self.stream.release(time.monotonic_ns()))
-        due = self.stream.due_ns()
-        return None if due is None else (due - time.monotonic_ns()) * 1e-9
+        return self.stream.seconds_to_due(time.monotonic_ns())
 
     def _take(self, step: Step) -> None:
         """Publish what the stream accepted (compensated), queue it for the estimator."""
         if step.adopted_frame:
             self.runner.set_frame_id(step.adopted_frame)
         for c in step.accepted:
-            if c.values is not None:  # else rejected as compensation_non_finite
-                omega, f, gvar, avar = c.values
-                self._pub.publish(imu_cdr(c.stamp_ns, c.frame_id, omega, f, diag9(gvar),
-                                          diag9(avar)))
+            if publish_corrected(self._pub, c):  # else counted as compensation_non_finite
                 self.counts['published'] += 1
             self._pending_imu.append((c.stamp_ns, c.gyro, c.accel))  # cheap to queue
         self.counts['missing_imu'] = self.stream.missing

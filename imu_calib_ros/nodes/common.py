@@ -31,7 +31,7 @@ from rclpy.parameter import Parameter
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-from msg_adapters.convert import stamp_ns_from_time, time_msg_from_ns  # noqa: F401
+from msg_adapters.convert import imu_cdr, stamp_ns_from_time, time_msg_from_ns  # noqa: F401
 
 from ..core.config import from_mapping, load_yaml
 from ..core.errors import ConfigError, ImuCalibError
@@ -524,6 +524,17 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
 def diag9(var3: Any) -> tuple[float, ...]:
     """Row-major 3x3 diagonal covariance (the message layout) from three variances."""
     return (var3[0], 0.0, 0.0, 0.0, var3[1], 0.0, 0.0, 0.0, var3[2])
+
+
+def publish_corrected(pub: Any, c: Any) -> bool:
+    """Publish one sample an :class:`~imu_calib_ros.core.imu_stream.ImuStream` step accepted,
+    compensated, with its diagonal covariances (serialised ``sensor_msgs/Imu``); False when
+    its compensation was not finite (the stream counted it; nothing goes out)."""
+    if c.values is None:
+        return False
+    omega, f, gvar, avar = c.values
+    pub.publish(imu_cdr(c.stamp_ns, c.frame_id, omega, f, diag9(gvar), diag9(avar)))
+    return True
 
 
 def finite(*arrays: Any) -> bool:

@@ -20,14 +20,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
-from msg_adapters.convert import imu_cdr, imu_fields_from_cdr
+from msg_adapters.convert import imu_fields_from_cdr
 
 from ..core.calibration import CalibrationResult
 from ..core.errors import ConfigError, ImuCalibError
 from ..core.imu_stream import ImuStream, Step
 from ..core.stream_compensation import StreamCompensation
-from .common import (Endpoint, NodeInterface, declare_config, diag9, quiet_publisher,
-                     reliable_qos, run_node, sensor_qos)
+from .common import (Endpoint, NodeInterface, declare_config, publish_corrected,
+                     quiet_publisher, reliable_qos, run_node, sensor_qos)
 from .input_thread import InputThread
 
 NODE_NAME = 'compensator'
@@ -133,8 +133,7 @@ class CompensatorNode(Node):
         """IMU input thread, after each burst: the samples whose reorder wait is over (the
         stream paused); returns the seconds until the next one is due."""
         self._take(self.stream.release(time.monotonic_ns()))
-        due = self.stream.due_ns()
-        return None if due is None else (due - time.monotonic_ns()) * 1e-9
+        return self.stream.seconds_to_due(time.monotonic_ns())
 
     def _take(self, step: Step) -> None:
         """Publish the compensated samples; log the dropped ones (throttled)."""
@@ -143,10 +142,7 @@ class CompensatorNode(Node):
                          f'"{self.calibration.frame_id}"' if r.reason == 'frame_id' else
                          _DETAIL[r.reason])
         for c in step.accepted:
-            if c.values is not None:
-                omega, f, gvar, avar = c.values
-                self._pub.publish(imu_cdr(c.stamp_ns, c.frame_id, omega, f, diag9(gvar),
-                                          diag9(avar)))
+            if publish_corrected(self._pub, c):  # else counted as compensation_non_finite
                 self.published += 1
         if step.rate_known and self.compensation.rate_mismatch:
             self.get_logger().warn(self.compensation.rate_mismatch)
