@@ -71,6 +71,17 @@ MEMS_TARGETS: dict[str, tuple[float, str]] = {
     'gyro_scale': (300.0, 'both'), 'accel_scale': (300.0, 'both'),  # ppm
     'gyro_misalignment': (300.0, 'both'), 'accel_misalignment': (300.0, 'both'),  # urad
 }
+
+
+def mems_gyro_bias_target_deg_h(grade: Any) -> float:
+    """Issue 3's MEMS gyro-bias target as the owner restated it: at the floor the unit's own
+    in-run instability allows (:func:`imu_calib_ros.core.estimator.noise.gyro_bias_floor_rad_s`,
+    1.5x for a filter that estimates 50 states besides, as bench_robustness.py allows), and
+    ``MEMS_TARGETS['gyro_bias']`` (2 deg/h) on a unit whose noise allows it."""
+    from imu_calib_ros.core.estimator.noise import gyro_bias_floor_rad_s
+    return max(MEMS_TARGETS['gyro_bias'][0], 1.5 * gyro_bias_floor_rad_s(grade) / em.DEG_H)
+
+
 AUX_UNITS = {'lever_arm': (em.MM, 'mm'), 'mounting': (em.URAD, 'urad')}
 
 
@@ -235,10 +246,10 @@ def gm_bias_limits(grade: Any, duration_s: float) -> tuple[float, float]:
     mean over T of a Gauss-Markov process has variance ``2 sigma^2 tau / T`` (T >> tau),
     plus the ARW's ``N^2 / T``.
     """
+    from imu_calib_ros.core.estimator.noise import gyro_bias_floor_rad_s
     n = grade.gyro_noise_rad_s_rt_hz
     s, tau = grade.gyro_bias_instability_rad_s, grade.gyro_bias_correlation_s
-    q = 2.0 * s ** 2 / tau + grade.gyro_bias_random_walk_rad_s2_rt_hz ** 2
-    tracked = np.sqrt(n * np.sqrt(q))
+    tracked = gyro_bias_floor_rad_s(grade)
     const = np.sqrt(2.0 * s ** 2 * tau / duration_s + n ** 2 / duration_s)
     return float(tracked / em.DEG_H), float(const / em.DEG_H)
 

@@ -7,11 +7,23 @@ generated for it (core/chain_plans.py), with the errors of an uncalibrated arm.
 
 The arm the data come from has joint zero offsets N(0, 1 mrad) and joint-origin (link)
 errors N(0, 2 mm) per coordinate; the estimator gets the nominal URDF and bounds their effect
-in its measurement noise (docs/ESTIMATOR.md, "General chains"). Replay is the plain command's
-(no grade, default config). Prints per parameter the error, sigma and error/sigma in
-engineering units, the per-group targets of issue 3 (bench_accuracy.MEMS_TARGETS), a table of
-what the arm cannot excite, and one ``SUMMARY`` line. ``--generate`` generates the plan
-afresh (~10 s) instead of reading the shipped config/plans/arm6_excitation.yaml.
+in its measurement noise, and their share of the mounting and lever arm in those states'
+reported covariance (docs/ESTIMATOR.md, "General chains"). The mounting and lever arm are the
+IMU's on the last link as its encoder reads it: their truth includes the last joint's zero
+offset and the part of its origin error along its axis (estimator.truth.last_link_truth).
+
+Replay is the plain command's (no grade, default config) for ``mems`` and ``tactical``;
+``mems-stable`` (the same MEMS unit without its 10 deg/h in-run gyro bias instability) is
+replayed with its grade (``imu-calib replay --imu``): without one the estimator must assume a
+MEMS unit's bias walk (estimator.noise.MEMS_BIAS_WALK), whose floor is 3.7 deg/h on this
+unit's noise, so only a unit that says it is stable can reach 2 deg/h. The MEMS gyro-bias
+target is issue 3's as restated by its owner (bench_accuracy.mems_gyro_bias_target_deg_h: the
+floor the unit's instability allows, <= 2 deg/h where its noise allows it). Prints per
+parameter the error, sigma and error/sigma in engineering units, the per-group targets of
+issue 3, a table of what the arm cannot excite, and one ``SUMMARY`` line: PASS if every
+target is met and no error (the 45 sensor errors, the lever arm and the mounting) is beyond
+3 sigma. ``--generate`` generates the plan afresh (~3 s) instead of reading the shipped
+config/plans/arm6_excitation.yaml.
 """
 from __future__ import annotations
 
@@ -25,10 +37,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_accuracy import MEMS_TARGETS, RunResult, honesty_line, merged_samples, print_table  # noqa: E402
+from bench_accuracy import (MEMS_TARGETS, RunResult, honesty_line, merged_samples,  # noqa: E402
+                            mems_gyro_bias_target_deg_h, print_table)
 
 from imu_calib_ros.core.chain_plans import excitation_plan  # noqa: E402
 from imu_calib_ros.core.estimator import EstimatorConfig  # noqa: E402
+from imu_calib_ros.core.estimator.noise import gyro_bias_floor_rad_s  # noqa: E402
 from imu_calib_ros.core.estimator.replay import replay  # noqa: E402
 from imu_calib_ros.core.estimator.truth import calibration_truth  # noqa: E402
 from imu_calib_ros.core.fixture import load_fixture, perturbed_chain  # noqa: E402
@@ -56,7 +70,8 @@ def tactical_grade():  # noqa: ANN201
         accel_bias_instability_m_s2=10e-6 * 9.80665, sigma=sig)
 
 
-def run(grade, fx_nominal, profile, rate, seed, off_sig, link_sig):  # noqa: ANN001, ANN201
+def run(grade, fx_nominal, profile, rate, seed, off_sig, link_sig,  # noqa: ANN001, ANN201
+        hint=False):  # noqa: ANN001
     rng = np.random.default_rng(1000 + seed)
     true_chain, offsets, dxyz = perturbed_chain(fx_nominal, rng, off_sig, link_sig)
     t0 = time.perf_counter()
@@ -64,7 +79,7 @@ def run(grade, fx_nominal, profile, rate, seed, off_sig, link_sig):  # noqa: ANN
     t1 = time.perf_counter()
     cfg = EstimatorConfig(chain_joint_offset_sigma_rad=max(off_sig, 1e-9),
                           chain_link_sigma_m=max(link_sig, 1e-9))
-    est = replay(lambda: merged_samples(sim), fx_nominal, None, cfg, 1)
+    est = replay(lambda: merged_samples(sim), fx_nominal, grade if hint else None, cfg, 1)
     t2 = time.perf_counter()
     st = est.estimate_state()
     labels = list(st.labels)
@@ -124,25 +139,36 @@ def main() -> int:
         grade = load_grade('mems_mti1') if case.startswith('mems') else tactical_grade()
         if case == 'mems-stable':  # the same unit without its 10 deg/h in-run bias instability
             grade = dataclasses.replace(grade, gyro_bias_instability_rad_s=0.0)
+        hint = case == 'mems-stable'
         r, offsets, dxyz = run(grade, fx, profile, args.rate, args.seed,
-                               args.joint_offset_sigma, args.link_sigma)
-        print(f'\n=== {case}: simulate {r.sim_s:.1f} s, replay {r.replay_s:.1f} s; true zero '
-              f'offsets [mrad] {np.round(offsets * 1e3, 2).tolist()}')
-        book = print_table(r, MEMS_TARGETS)
+                               args.joint_offset_sigma, args.link_sigma, hint)
+        floor = gyro_bias_floor_rad_s(grade) / DEG_H
+        targets = dict(MEMS_TARGETS)
+        if case.startswith('mems'):
+            targets['gyro_bias'] = (mems_gyro_bias_target_deg_h(grade), 'both')
+        print(f'\n=== {case} ({"its grade as hint" if hint else "plain"}): simulate '
+              f'{r.sim_s:.1f} s, replay {r.replay_s:.1f} s; true zero offsets [mrad] '
+              f'{np.round(offsets * 1e3, 2).tolist()}; last link origin error [mm] '
+              f'{np.round(dxyz[-1] * 1e3, 2).tolist()}')
+        print(f'gyro-bias floor of the unit\'s instability {floor:.2f} deg/h, N/sqrt(T) '
+              f'{grade.gyro_noise_rad_s_rt_hz / math.sqrt(profile.duration_s) / DEG_H:.2f} '
+              f'deg/h: target {targets["gyro_bias"][0]:.3g} deg/h')
+        book = print_table(r, targets)
         print(honesty_line(r))
-        # lever arm and mounting are auxiliary states that absorb the last link's errors (its
-        # origin error moves the IMU point, its zero offset turns it about the joint axis):
-        # their truth on an arm with errors is not the mounting's alone, so the honesty
-        # verdict is over the CONTRACT 3 sensor errors
         sensor = np.array([g not in ('lever_arm', 'mounting') for g in r.groups])
         n_bad = int((np.abs(r.z[sensor]) > 3).sum())
+        n_aux_bad = int((np.abs(r.z[~sensor]) > 3).sum())
         print(f'sensor errors (CONTRACT 3, {int(sensor.sum())} states): max|err/sig| '
-              f'{np.abs(r.z[sensor]).max():.2f}, {n_bad} beyond 3 sigma')
+              f'{np.abs(r.z[sensor]).max():.2f}, {n_bad} beyond 3 sigma; lever arm and mounting '
+              f'(on the last link as its encoder reads it): max|err/sig| '
+              f'{np.abs(r.z[~sensor]).max():.2f}, {n_aux_bad} beyond 3 sigma')
         met = sum(book['met'].values())
-        ok = n_bad == 0 and met == len(book['met'])
+        ok = n_bad == 0 and n_aux_bad == 0 and met == len(book['met'])
         ok_all &= ok
         summary.append(f'{case}: targets {met}/{len(book["met"])}, {n_bad}/{int(sensor.sum())} '
-                       f'sensor errors beyond 3 sigma (max|z| {np.abs(r.z[sensor]).max():.2f})')
+                       f'sensor errors beyond 3 sigma (max|z| {np.abs(r.z[sensor]).max():.2f}), '
+                       f'{n_aux_bad}/{int((~sensor).sum())} lever/mounting (max|z| '
+                       f'{np.abs(r.z[~sensor]).max():.2f})')
     n_cannot = sum(1 for row in rows if row.joint is None)
     print(f'\nSUMMARY bench_arm: {"; ".join(summary)}; arm cannot excite {n_cannot}/9 '
           f'(axis, attitude) cases -> {"PASS" if ok_all else "FAIL"}')

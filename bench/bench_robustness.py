@@ -374,16 +374,15 @@ def oracle_grade(truth: dict[str, Any]) -> dict[str, Any]:
 
 
 def gyro_bias_floor_deg_h(truth: dict[str, Any]) -> float:
-    """Least sigma of a tracked gyro bias [deg/h] that the unit's own noise allows (issue 3's
-    note, restated by issue 11): a random walk of PSD ``q`` (Gauss-Markov instability
-    ``2 sigma^2 / tau`` plus the rate random walk) measured through white noise of density
-    ``N`` has a steady-state sigma of ``sqrt(N sqrt(q))`` even with the angle known; the
-    turn-on constant alone over ``T`` no better than ``N / sqrt(T)``."""
+    """Least sigma of a tracked gyro bias [deg/h] that the unit's own noise allows
+    (:func:`imu_calib_ros.core.estimator.noise.gyro_bias_floor_rad_s`, for the truth file's
+    noise)."""
+    from imu_calib_ros.core.estimator.noise import gyro_bias_floor_rad_s
+    from imu_calib_ros.core.imu_grade import ImuGrade
     nz = truth['imu_calibration']['noise']
-    n = nz['gyro_noise_rad_s_rt_hz']
-    q = (2.0 * nz['gyro_bias_instability_rad_s'] ** 2 / nz['gyro_bias_correlation_s']
-         + nz['gyro_bias_random_walk_rad_s2_rt_hz'] ** 2)
-    return math.sqrt(n * math.sqrt(q)) / _DEG_H
+    keys = {f.name for f in dataclasses.fields(ImuGrade)}
+    grade = ImuGrade('truth', **{k: float(v) for k, v in nz.items() if k in keys})
+    return gyro_bias_floor_rad_s(grade) / _DEG_H
 
 
 def evaluate(case: Case, calib: dict[str, Any], truth: dict[str, Any],

@@ -13,7 +13,14 @@ squares (scipy) from the home pose and from seeded random starts, for each candi
   that axis, whatever the other joints do);
 - the joint axis is horizontal, or the IMU axis points up or down;
 - every joint stays within its limits (less a margin) over the whole rotation, and the IMU
-  and every joint origin stay ``min_height_m`` above the base origin (a crude floor).
+  and every joint origin stay ``min_height_m`` above the base origin (a crude floor), over
+  the rotation and the move there. The floor is a term of the search itself (a hinge on the
+  heights), and every pose found is tried, nearest first: the pose nearest home with a UR5's
+  tool pointing down is below the floor, so "y down" and "z down" were once reported
+  impossible on arm6.urdf although its wrist turns the tool about both.
+
+A joint whose axis can never lie along the IMU axis (e.g. the last joint for an IMU axis
+perpendicular to it: that angle is fixed) is skipped with that reason.
 
 What no joint can produce is listed in the returned :class:`ExcitationRow` table ("what the
 arm cannot excite"). The plan is an ordinary plan (``set``, ``move``, ``dwell`` steps), so it
@@ -66,11 +73,31 @@ def _heights_ok(fx: Fixture, q: FloatArray, min_height_m: float) -> bool:
     return bool(z.min() >= min_height_m and O[:, 2:].min() >= min_height_m)
 
 
+def _floor_points(fx: Fixture, q: FloatArray) -> FloatArray:
+    """Heights above the base origin of the IMU point and of every joint origin but the first
+    two (those on the base), (..., n - 1); empty for a turntable (no floor)."""
+    if fx.concurrent:
+        return np.zeros(q.shape[:-1] + (0,))
+    z = fx.p_enu_m(q)[..., 2:3]
+    O = fx._origins(q)[2][..., 2:, 2]  # noqa: SLF001 (the chain's own helper)
+    return np.concatenate([z, O], axis=-1)
+
+
 def _solve(fx: Fixture, k: int, case: str, j: int, q_home: FloatArray, lo: FloatArray,
-           hi: FloatArray, rng: np.random.Generator, starts: int) -> FloatArray | None:
+           hi: FloatArray, rng: np.random.Generator, starts: int,
+           min_height_m: float) -> list[FloatArray]:
+    """Poses with IMU axis ``k`` along joint ``j``'s axis in attitude ``case`` and above the
+    floor, nearest ``q_home`` first (empty: none found). The floor is part of the search: a
+    hinge residual on the heights (:func:`_floor_points`, 2 cm of clearance) at the pose and,
+    for a horizontal axis (the turn changes the heights), at 12 angles of a full turn of
+    joint ``j``; the pose nearest home with the tool pointing down is otherwise below the
+    floor on an outstretched arm and the case was reported impossible."""
     e_k = np.eye(3)[k]
     lo_f = np.where(np.isfinite(lo), lo, -2 * math.pi)
     hi_f = np.where(np.isfinite(hi), hi, 2 * math.pi)
+    turns = (np.linspace(0.0, 2 * math.pi, 12, endpoint=False) if case == 'horizontal'
+             else np.zeros(1))
+    floor = min_height_m + 0.02
 
     def constraint(q: FloatArray) -> FloatArray:
         R = fx.R_enu_imu(q)
@@ -81,6 +108,9 @@ def _solve(fx: Fixture, k: int, case: str, j: int, q_home: FloatArray, lo: Float
             parts.append(np.array([u @ UP]))
         else:
             parts.append(a - (UP if case == 'up' else -UP))
+        qs = np.repeat(q[None, :], len(turns), axis=0)
+        qs[:, j] += turns
+        parts.append(np.maximum(0.0, floor - _floor_points(fx, qs)).ravel())
         return np.concatenate(parts)
 
     def resid(q: FloatArray) -> FloatArray:
@@ -89,7 +119,7 @@ def _solve(fx: Fixture, k: int, case: str, j: int, q_home: FloatArray, lo: Float
     x0s = [np.clip(q_home, lo_f, hi_f)] if starts == 0 else []
     for _ in range(starts):
         x0s.append(np.clip(q_home + rng.uniform(-math.pi, math.pi, len(q_home)), lo_f, hi_f))
-    best, best_cost = None, math.inf
+    found: list[tuple[float, FloatArray]] = []
     for x0 in x0s:
         x0 = np.clip(x0, lo_f + 1e-9, hi_f - 1e-9)
         sol = least_squares(resid, x0, bounds=(lo_f, hi_f), xtol=1e-10, ftol=1e-10,
@@ -101,10 +131,8 @@ def _solve(fx: Fixture, k: int, case: str, j: int, q_home: FloatArray, lo: Float
                             max_nfev=60)
         if np.abs(constraint(sol.x)).max() > 1e-9:
             continue
-        cost = float(np.sum((sol.x - q_home) ** 2))
-        if cost < best_cost:
-            best, best_cost = sol.x, cost
-    return best
+        found.append((float(np.sum((sol.x - q_home) ** 2)), sol.x))
+    return [q for _, q in sorted(found, key=lambda c: c[0])]
 
 
 def _sweep_start(q_j: float, lo: float, hi: float, angle: float) -> float | None:
@@ -116,6 +144,34 @@ def _sweep_start(q_j: float, lo: float, hi: float, angle: float) -> float | None
     if lo_s > hi_s:
         return None
     return float(min(max(q_j, lo_s), hi_s))
+
+
+def _sweep(fx: Fixture, j: int, q: FloatArray, q_now: FloatArray, lo: FloatArray,
+           hi: FloatArray, angle: float, min_height_m: float) -> tuple[FloatArray, float] | None:
+    """The start pose and sign of a turn of joint ``j`` by ``angle`` from pose ``q`` that
+    stays within the joint's range and above the floor, reached from ``q_now`` above the
+    floor (a ``set`` step: a straight line in joint space); None if neither sign does."""
+    for sgn in (1.0, -1.0):
+        start = _sweep_start(q[j], lo[j], hi[j], sgn * angle)
+        if start is None:
+            continue
+        qs = q.copy()
+        qs[j] = start
+        sweep = np.repeat(qs[None, :], 73, axis=0)
+        sweep[:, j] += np.linspace(0.0, sgn * angle, 73)
+        transit = q_now[None, :] + np.linspace(0.0, 1.0, 49)[:, None] * (qs - q_now)[None, :]
+        if _heights_ok(fx, sweep, min_height_m) and _heights_ok(fx, transit, min_height_m):
+            return qs, sgn
+    return None
+
+
+def _can_align(fx: Fixture, j: int, k: int, rng: np.random.Generator) -> bool:
+    """Whether joint ``j``'s axis can lie along IMU axis ``k`` at all (it depends on the
+    joints after ``j`` only): False if over 4096 random poses ``|u_j . e_k|`` stays below
+    0.9, e.g. always 0 for an IMU axis perpendicular to the last joint's (that joint's
+    axis in the IMU frame is constant)."""
+    q = rng.uniform(-math.pi, math.pi, (4096, fx.n_joints))
+    return bool(np.abs(fx.joint_axes_imu(q)[:, j, k]).max() >= 0.9)
 
 
 def excitation_plan(fx: Fixture, q_home_rad: Any | None = None, rotation_deg: float = 360.0,
@@ -152,6 +208,8 @@ def excitation_plan(fx: Fixture, q_home_rad: Any | None = None, rotation_deg: fl
                                    {'dwell': {'duration_s': dwell_s, 'label': 'home'}}]
     rows: list[ExcitationRow] = []
     q_now = q_home.copy()
+    aligns = np.array([[fx.joints[j].revolute and _can_align(fx, j, k, rng) for k in range(3)]
+                       for j in range(n)])
     for k in range(3):
         for case in CASES:
             angle = math.radians(rotation_deg if case == 'horizontal' else vertical_rotation_deg)
@@ -165,31 +223,27 @@ def excitation_plan(fx: Fixture, q_home_rad: Any | None = None, rotation_deg: fl
             for j, n_starts in tries:
                 if not fx.joints[j].revolute:
                     continue
-                q = _solve(fx, k, case, j, q_now, lo, hi, rng, n_starts)
-                if q is None:
-                    reasons.append(f'{names[j]}: no pose')
+                if not aligns[j, k]:
+                    reasons.append(f'{names[j]}: its axis is never along the IMU {axis} axis')
                     continue
-                for sgn in (1.0, -1.0):
-                    start = _sweep_start(q[j], lo[j], hi[j], sgn * angle)
-                    if start is None:
-                        continue
-                    qs = q.copy()
-                    qs[j] = start
-                    sweep = np.repeat(qs[None, :], 73, axis=0)
-                    sweep[:, j] += np.linspace(0.0, sgn * angle, 73)
-                    if not _heights_ok(fx, sweep, min_height_m):
-                        continue
-                    found = (j, qs, sgn)
-                    break
+                poses = _solve(fx, k, case, j, q_now, lo, hi, rng, n_starts, min_height_m)
+                if not poses:
+                    reasons.append(f'{names[j]}: no pose within the limits and above the floor')
+                    continue
+                for q in poses:
+                    found = _sweep(fx, j, q, q_now, lo, hi, angle, min_height_m)
+                    if found:
+                        break
                 if found:
                     break
-                reasons.append(f'{names[j]}: range or floor')
+                reasons.append(f'{names[j]}: the turn leaves its range or goes below the '
+                               'floor')
             reasons = sorted(set(reasons))
             if found is None:
                 rows.append(ExcitationRow(axis, case, None, 0.0,
                                           '; '.join(reasons) or 'no revolute joint'))
                 continue
-            j, qs, sgn = found
+            qs, sgn = found
             travel = float(np.max(np.abs(qs - q_now)))
             steps.append({'set': {'joints': {nm: math.degrees(v) for nm, v in zip(names, qs)},
                                   'duration_s': max(2.0, 1.875 * travel / max_rate_rad_s),
@@ -271,7 +325,8 @@ def home_pose(fx: Fixture, margin_rad: float = 0.05, min_height_m: float = 0.15,
     range (0 for unlimited ones) if it is above the floor, else the nearest of seeded random
     poses within the limits that is."""
     lo, hi = _limits(fx, margin_rad)
-    mid = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (lo + hi), 0.0)
+    fin = np.isfinite(lo) & np.isfinite(hi)
+    mid = np.where(fin, 0.5 * (np.where(fin, lo, 0.0) + np.where(fin, hi, 0.0)), 0.0)
     if _heights_ok(fx, mid, min_height_m):
         return mid
     rng = np.random.default_rng(seed)

@@ -58,6 +58,7 @@ from .ekf import ErrorStateFilter
 from .history import EstimateHistory
 from .health import (NisWindow, bridge_gap, numerical_fault, restart_covariance,
                      rollback_covariance, snapshots, state_out_of_range, status, widen_for_gaps)
+from .chain_consider import ChainConsider
 from .measurements import (MEAS_SCALE, MEASUREMENT_DOF, chain_attitude_covariance,
                            chain_velocity_covariance, encoder_attitude, lengthened_chains,
                            noise_covariance, to_filter_units, zero_velocity)
@@ -114,6 +115,8 @@ class CalibrationEstimator:
         self._given_start = start
         self._joint_names = tuple(fixture.joint_names)
         self._chain_fixtures: tuple[Any, ...] | None = None  # general chains (issue 15)
+        # the arm errors' share of the mounting and lever arm (issue 15 item 4)
+        self._consider = None if fixture.concurrent else ChainConsider(fixture)
         self.reset()
 
     # ------------------------------------------------------------------ public API
@@ -273,7 +276,24 @@ class CalibrationEstimator:
         if self._prior_shift is not None and values.size:
             values = values - self._prior_correction(P)
             tg, ta, rho, mount = with_values(lay, values, tg, ta, rho, mount)
+        if self._consider is not None and self._filter is not None:
+            P = self._with_chain_consider(P)
         return Estimate(tg, ta, rho, mount, tuple(lay.labels()[6:]), values, P)
+
+    def _with_chain_consider(self, P: FloatArray) -> FloatArray:
+        """``P`` with the arm errors' share of the mounting and lever arm added to their
+        blocks (:mod:`.chain_consider`; the reported covariance only, never the filter's)."""
+        assert self._consider is not None
+        cfg = self.config
+        C_mu, C_rho = self._consider.covariance(cfg.chain_joint_offset_sigma_rad,
+                                                cfg.chain_link_sigma_m)
+        P = P.copy()
+        for group, C in (('mounting', C_mu), ('lever_arm', C_rho)):
+            if group in self.layout.slices:
+                sl = self.layout.slices[group]
+                s = slice(sl.start - 6, sl.stop - 6)
+                P[s, s] += C
+        return P
 
     def estimate(self, frame_id: str | None = None) -> Any:
         """The calibration as a :class:`~imu_calib_ros.core.calibration.CalibrationResult`.
@@ -504,6 +524,12 @@ class CalibrationEstimator:
         if chain is not None:  # a general chain: its errors bound in the noise (issue 15)
             R_vb = R_v[None] + chain[4] / MEAS_SCALE ** 2
             R_ab = R_a[None] + chain[5] / MEAS_SCALE ** 2
+            if self._consider is not None:
+                cov, q_c, R_end = chain[0], chain[1], blk.R_enu_imu_end
+                self._consider.add_velocity(q_c[cov], chain[2][cov], R_end[cov])
+                if 'mounting' in lay.slices:
+                    att = cov & have_att
+                    self._consider.add_attitude(q_c[att], R_end[att])
         filt = self._filter
         q1_diag_s = np.diag(q1_s)
         for b in range(B):

@@ -78,6 +78,25 @@ def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float) -> tuple[
     return out[0], out[1]
 
 
+def grade_bias_walk(grade: Any) -> tuple[float, float]:
+    """Spectral densities ``(q_g, q_a)`` of a grade's bias walk [(rad/s)^2/s, (m/s^2)^2/s]:
+    its Gauss-Markov instability as a random walk ``2 sigma^2 / tau`` plus its random walk."""
+    return (2.0 * grade.gyro_bias_instability_rad_s ** 2 / grade.gyro_bias_correlation_s
+            + grade.gyro_bias_random_walk_rad_s2_rt_hz ** 2,
+            2.0 * grade.accel_bias_instability_m_s2 ** 2 / grade.accel_bias_correlation_s
+            + grade.accel_bias_random_walk_m_s3_rt_hz ** 2)
+
+
+def gyro_bias_floor_rad_s(grade: Any) -> float:
+    """Least sigma of a tracked gyro bias [rad/s] that a unit's own noise allows (issue 3's
+    note, restated by issue 11; the MEMS gyro-bias target is this floor, and <= 2 deg/h where
+    it is lower): a random walk of PSD ``q`` (:func:`grade_bias_walk`) seen through white rate
+    noise of density ``N`` has the steady-state sigma ``sqrt(N sqrt(q))`` even with the angle
+    known (scalar Kalman-Bucy Riccati equation); zero for a unit without bias walk (then the
+    turn-on constant alone limits, ``N / sqrt(T)`` over ``T`` seconds)."""
+    return math.sqrt(grade.gyro_noise_rad_s_rt_hz * math.sqrt(grade_bias_walk(grade)[0]))
+
+
 def bias_random_walk(grade: Any, start: CoarseStart | None,
                      mems_gyro_noise_rad_s_rt_hz: float) -> tuple[float, float]:
     """Spectral densities of the gyro and accelerometer bias random walk ``(q_g, q_a)``
@@ -89,10 +108,7 @@ def bias_random_walk(grade: Any, start: CoarseStart | None,
     gr = grade
     qg = qa = 0.0
     if gr is not None:
-        qg = (2.0 * gr.gyro_bias_instability_rad_s ** 2 / gr.gyro_bias_correlation_s
-              + gr.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
-        qa = (2.0 * gr.accel_bias_instability_m_s2 ** 2 / gr.accel_bias_correlation_s
-              + gr.accel_bias_random_walk_m_s3_rt_hz ** 2)
+        qg, qa = grade_bias_walk(gr)
     st = start
     if st is not None:  # item 5: the random walk the data show, if larger
         qg = max(qg, st.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
