@@ -31,6 +31,10 @@ if TYPE_CHECKING:
 METHODS = ('ekf', 'srt', 'oscillation')
 
 
+#: most passes over a bag when the first leaves its linear region (--max-passes)
+AUTO_MAX_PASSES = 3
+
+
 def register(subparsers: Any) -> None:
     """Add the ``replay`` sub-command."""
     p = subparsers.add_parser('replay', help='calibrate from a recorded bag (CONTRACT 5)',
@@ -53,6 +57,10 @@ def register(subparsers: Any) -> None:
     p.add_argument('--iterations', type=int, default=1, metavar='N',
                    help='passes over the bag, >= 1 (default 1); each extra pass '
                         'relinearises about the previous estimate (Savage sect. 8)')
+    p.add_argument('--max-passes', type=int, default=AUTO_MAX_PASSES, metavar='M',
+                   help='after the --iterations passes, more (up to M in all) while the '
+                        'last pass\'s estimate moved beyond the region where its '
+                        f'linearisation holds (a weak plan; default {AUTO_MAX_PASSES}; 1: never)')
     p.add_argument('--method', default='ekf', choices=METHODS,
                    help='ekf: augmented-state EKF (default); srt: Savage\'s SRT processor; '
                         'oscillation: Kozlov & Kapralov\'s harmonic oscillations')
@@ -135,6 +143,33 @@ def _joints_the_fixture_lacks(args: Any, fixture: Any) -> str:
             f"(fixture joints: {', '.join(fixture.joint_names)})")
 
 
+#: fewer stationary poses than the six-position test has: too few for a raw unit's errors
+WEAK_PLAN_POSES = 6
+
+
+def _weak_plan_hint(run_: Any) -> str:
+    """A clause naming what the recorded plan lacks when it is weak (fewer than
+    :data:`WEAK_PLAN_POSES` distinct stationary poses over the run, or turns about fewer than
+    three IMU axes in what the coarse start saw), for a refusal whose cause is then the plan
+    rather than the unit; ``''`` otherwise."""
+    import numpy as np
+    lacks = []
+    wins = run_.ledger.windows()
+    poses: list[Any] = []
+    for w in wins:
+        if not any(np.max(np.abs(w[2] - p)) < 1e-3 for p in poses):
+            poses.append(w[2])
+    if len(poses) < WEAK_PLAN_POSES:
+        lacks.append(f'{len(poses)} stationary poses')
+    start = run_.estimator.start
+    if start is not None and any('fewer than three' in n for n in start.notes):
+        lacks.append('turns about fewer than three IMU axes')
+    if not lacks:
+        return ''
+    return (f' (the plan has {" and ".join(lacks)}: too little to determine an uncalibrated '
+            'unit\'s errors; record a plan such as six_position_turns or savage_srt)')
+
+
 def run(args: Any) -> int:
     """Run the sub-command (errors propagate as ImuCalibError: one line, exit 2)."""
     from ..core.fixture import load_fixture
@@ -143,6 +178,8 @@ def run(args: Any) -> int:
     out = Path(args.output)
     if args.iterations < 1:
         raise InputError(f'--iterations must be >= 1, got {args.iterations}')
+    if args.max_passes < 1:
+        raise InputError(f'--max-passes must be >= 1, got {args.max_passes}')
     check_output_file(out, 'calib.yaml')
     fixture = load_fixture(args.fixture, urdf_options(args))
     grade = load_grade(args.imu) if args.imu else None
@@ -188,7 +225,8 @@ def run(args: Any) -> int:
 
         try:
             run_ = replay_run(open_bag, fixture, grade, config, args.iterations,
-                              progress=bar.update if bar is not None else None)
+                              progress=bar.update if bar is not None else None,
+                              max_passes=args.max_passes)
         except InputError as exc:  # name a joint the bag moves and the fixture lacks
             hint = _joints_the_fixture_lacks(args, fixture)
             if hint:
@@ -198,11 +236,21 @@ def run(args: Any) -> int:
             if bar is not None:
                 bar.close()
         calib = run_.estimator.estimate()
+        if run_.extra_passes:
+            import dataclasses
+            n = max(1, args.iterations) + len(run_.extra_passes)
+            est_extra = dict(calib.extra.get('estimator', {}))
+            est_extra['passes'] = {'count': n, 'extra_because': list(run_.extra_passes)}
+            calib = dataclasses.replace(calib, extra={**calib.extra, 'estimator': est_extra})
+            if not args.quiet:
+                print(f'imu-calib replay: note: {n} passes; the plan left the first '
+                      f'linearisation ({run_.extra_passes[0]}): each further pass starts '
+                      'from the last estimate (Savage sect. 8)', file=sys.stderr)
         reorder = passes[-1].reorder_stats
         verdict = run_.verdict
         if not verdict.passed and not args.force:
-            raise SelfCheckError(f'{verdict.line}; no calibration written (--force writes '
-                                 'it, marked as failing)')
+            raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_)}; no '
+                                 'calibration written (--force writes it, marked as failing)')
     _reorder_note(reorder, args.reorder_window, args.quiet)
     calib = _with_provenance(calib, args, reorder)
     if verdict is not None:  # the same rule as the node's save (core/estimator/selfcheck.py)

@@ -969,6 +969,13 @@ class CalibrationEstimator:
         """Where pass 1 starts (:func:`.priors.prior_point`), as calibration-state values."""
         return values_of(self.layout, *prior_point(self.fixture, self.start, self.layout))
 
+    def start_values(self) -> FloatArray:
+        """Where this pass started, as calibration-state values (SI): the previous pass's
+        estimate, else the prior mean (the coarse start)."""
+        if self._initial is not None:
+            return np.asarray(self._initial.values, float)
+        return self._prior_mean()
+
     def _prior_correction(self, P: FloatArray) -> FloatArray:
         """What re-centring the prior on the starting estimate added to the estimate
         (:func:`.priors.prior_correction`: ``P P0^-1 (start - prior mean)``)."""

@@ -70,14 +70,46 @@ def _batches_of_samples(samples: Any, batch: int) -> Iterator[ImuBatch | JointBa
         yield ImuBatch.from_samples(imu)
 
 
+#: how far a pass's estimate may move from where the pass started and still count as
+#: linearised about it (the coarse start's own "determined" limits, :meth:`.coarse.CoarseStart.
+#: determined`: gyro scale and misalignment and the mounting turn into attitude errors that
+#: multiply gravity; the accelerometer's are linear in velocity)
+LINEAR_MOVE: dict[str, float] = {'gyro_scale': 2e-3, 'gyro_misalignment': 2e-3,
+                                 'mounting': 2e-3, 'accel_scale': 5e-3,
+                                 'accel_misalignment': 5e-3}
+
+
+def moved_beyond_linear(est: CalibrationEstimator) -> str:
+    """The state whose estimate moved furthest beyond :data:`LINEAR_MOVE` from where the pass
+    started, as ``'label moved X (limit L)'``; ``''`` if none did. Such a pass linearised its
+    first updates about a point it then left: on a weak plan (three poses, rotations about two
+    axes, the mounting unmeasured) the feedback filter gained information along directions the
+    data do not determine (a misalignment 46 sigma off, no update gated), which a pass started
+    from its estimate does not (Savage sect. 8)."""
+    lay = est.layout
+    st = est.estimate_state()
+    move = np.abs(np.asarray(st.values, float) - est.start_values())
+    worst, text = 1.0, ''
+    for g, lim in LINEAR_MOVE.items():
+        if g not in lay.slices:
+            continue
+        sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
+        j = int(np.argmax(move[sl]))
+        if move[sl][j] / lim > worst:
+            worst = float(move[sl][j] / lim)
+            text = f'{st.labels[sl.start + j]} moved {move[sl][j]:.3g} (limit {lim:g})'
+    return text
+
+
 @dataclass(frozen=True)
 class ReplayRun:
     """A replay's estimator (after the last pass), the evidence of that pass and its
-    self-check verdict (:mod:`.selfcheck`)."""
+    self-check verdict (:mod:`.selfcheck`), and why each pass after the requested ones ran."""
 
     estimator: CalibrationEstimator
     ledger: RunLedger
     verdict: Verdict
+    extra_passes: tuple[str, ...] = ()
 
 
 def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
@@ -154,22 +186,40 @@ def replay(open_samples: Callable[[], Any], fixture: Any, grade: Any,
 def replay_run(open_samples: Callable[[], Any], fixture: Any, grade: Any,
                config: EstimatorConfig, iterations: int = 1,
                progress: Callable[[int], None] | None = None,
-               selfcheck: SelfCheckConfig | None = None) -> ReplayRun:
-    """:func:`replay`, with the self-check verdict of the last pass (issue 17)."""
-    est, ledger = _passes(open_samples, fixture, grade, config, iterations, progress)
-    return ReplayRun(est, ledger, ledger.verdict(selfcheck))
+               selfcheck: SelfCheckConfig | None = None,
+               max_passes: int = 0) -> ReplayRun:
+    """:func:`replay`, with the self-check verdict of the last pass (issue 17).
+
+    ``max_passes`` > ``iterations``: after the requested passes, more (up to ``max_passes``
+    in all) while the last one moved beyond :data:`LINEAR_MOVE` from where it started
+    (:func:`moved_beyond_linear`); ``extra_passes`` says why each ran."""
+    est, ledger, why = _passes(open_samples, fixture, grade, config, iterations, progress,
+                               max_passes)
+    return ReplayRun(est, ledger, ledger.verdict(selfcheck), why)
 
 
 def _passes(open_samples: Callable[[], Any], fixture: Any, grade: Any,
             config: EstimatorConfig, iterations: int,
-            progress: Callable[[int], None] | None) -> tuple[CalibrationEstimator, RunLedger]:
+            progress: Callable[[int], None] | None, max_passes: int = 0
+            ) -> tuple[CalibrationEstimator, RunLedger, tuple[str, ...]]:
     init: Estimate | None = None
     est = None
     ledger = None
-    for _ in range(max(1, iterations)):
+    why: list[str] = []
+    k = 0
+    while True:
         # later passes keep the first pass's coarse start (the prior mean)
         est, ledger = _replay_pass(open_samples(), fixture, grade, config, init, 4000,
                                    progress, None if est is None else est.start)
         init = est.estimate_state()
+        k += 1
+        if k < max(1, iterations):
+            continue
+        if k >= max_passes:
+            break
+        moved = moved_beyond_linear(est)
+        if not moved:
+            break
+        why.append(f'pass {k}: {moved}')
     assert est is not None and ledger is not None
-    return est, ledger
+    return est, ledger, tuple(why)

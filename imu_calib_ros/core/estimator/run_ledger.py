@@ -45,6 +45,13 @@ WALK_CHECK_NS = 60_000_000_000  # bias_walk handed to the estimator every 60 s o
 PLAUSIBLE_GROUPS = ('gyro_scale', 'gyro_misalignment', 'accel_scale', 'accel_misalignment')
 
 
+
+def raw_unit_ratio(values: FloatArray, sigmas: FloatArray, raw_sigma: float) -> FloatArray:
+    """``|value| / sqrt(raw_sigma^2 + sigma^2)``: how many sigmas an estimate lies from zero
+    if the unit is a raw one (its error drawn from ``N(0, raw_sigma^2)``) and the estimate
+    carries its own error ``N(0, sigma^2)``; the plausibility check's statistic."""
+    return np.abs(values) / np.hypot(raw_sigma, sigmas)  # type: ignore[no-any-return]
+
 class RunLedger:
     """Whole-run evidence of one estimator (see the module docstring).
 
@@ -186,18 +193,22 @@ class RunLedger:
             raw_label=label, raw_states=n_raw, covariance_scale=est.covariance_scale())
 
     def raw_ratio(self) -> tuple[float, str, int]:
-        """Largest ``|estimate| / RAW_PRIOR`` over the scale and misalignment states (the
-        estimator's raw-unit prior: 3 %, 30 mrad, the largest an uncalibrated unit is
-        specified for), where a wrong sign (scale -2), axis order (misalignment ~1) or unit
-        (57.3, 1/9.8) shows; biases, G and the size effect have no such signature."""
+        """Largest ``|estimate| / sqrt(RAW_PRIOR^2 + sigma^2)`` over the scale and
+        misalignment states (the estimator's raw-unit prior: 3 %, 30 mrad, the largest an
+        uncalibrated unit is specified for), where a wrong sign (scale -2), axis order
+        (misalignment ~1) or unit (57.3, 1/9.8) shows; biases, G and the size effect have no
+        such signature. ``sigma`` is the estimate's own: an estimate of a raw unit is drawn
+        from the raw prior plus its error, so a state the plan leaves undetermined (a scale
+        factor 33 +- 15 % after three poses) is no evidence of a sign or a unit."""
         st = self.est.estimate_state()
         lay = self.est.layout
+        sd = np.sqrt(np.clip(np.diag(st.covariance), 0.0, None))
         worst, where, n = 0.0, '', 0
         for g in lay.groups:
             if g not in PLAUSIBLE_GROUPS:
                 continue
             sl = slice(lay.slices[g].start - 6, lay.slices[g].stop - 6)
-            r = np.abs(st.values[sl]) / RAW_PRIOR[g]
+            r = raw_unit_ratio(st.values[sl], sd[sl], RAW_PRIOR[g])
             n += len(r)
             j = int(np.argmax(r))
             if r[j] > worst or not math.isfinite(r[j]):
