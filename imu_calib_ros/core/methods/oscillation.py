@@ -61,6 +61,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
+from .. import parameters as registry
 from ..errors import InputError
 from ..kozlov import kozlov_c, kozlov_difference_factor, size_effect_mean_acceleration_enu
 from ..types import ImuBatch, JointBatch, sample_intervals_ns
@@ -259,7 +260,7 @@ def mean_acceleration_sigma(vrw_m_s2_rt_hz: float, arw_rad_s_rt_hz: float, g_m_s
 
 
 #: the six size-effect coordinates (r_xy, r_xz, r_yx, r_yz, r_zx, r_zy), CONTRACT 3 order
-_OFF = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
+_OFF = registry.parameter('accelerometer.size_effect').entries  # r_i[j], registry order
 _BASIS = tuple(np.where(np.arange(9).reshape(3, 3) == 3 * n + m, 1.0, 0.0) for n, m in _OFF)
 
 
@@ -312,7 +313,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     """
     from ..sensor_model import SensorErrors, compensate
     from ..strapdown import Strapdown
-    from .srt import FIELD_KEYS, _fields, _grade_sigmas, noise_densities
+    from .srt import FIELD_KEYS, _fields, noise_densities
 
     windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s)
     cycles = find_cycles(imu, joints, fixture, windows)
@@ -417,7 +418,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     for val, sd, (n, m) in zip(x, np.sqrt(np.diag(cov)), [p for p, e in zip(_OFF, est_cols)
                                                           if e]):
         r[n, m], r_sig[n, m] = val, sd
-    assumed = _grade_sigmas(grade)
+    assumed = registry.grade_sigmas(grade)
     sig = {k: v.copy() for k, v in assumed.items()} if initial is None else _fields(
         initial.sigma)
     errs = dict(base)

@@ -39,6 +39,7 @@ import scipy.linalg
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from .. import parameters as registry
 from ..earth import EARTH_RATE_RAD_S
 from ..errors import InputError
 from ..sensor_model import KEY_OF_FIELD
@@ -48,21 +49,17 @@ from .windows import Window, stationary_windows
 FloatArray = NDArray[np.float64]
 AXES = 'xyz'
 
-#: Estimated parameters: (name, SensorErrors field, index). Kg entries are symmetric pairs.
-PARAMS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
-    *((f'Kg_{a}{a}', 'gyro_scale_misalignment', (i, i)) for i, a in enumerate(AXES)),
-    ('Kg_xy', 'gyro_scale_misalignment', (0, 1)), ('Kg_xz', 'gyro_scale_misalignment', (0, 2)),
-    ('Kg_yz', 'gyro_scale_misalignment', (1, 2)),
-    *((f'ag_{a}', 'gyro_scale_asymmetry', (i,)) for i, a in enumerate(AXES)),
-    *((f'Ka_{a}{b}', 'accel_scale_misalignment', (i, j))
-      for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
-    *((f'aa_{a}', 'accel_scale_asymmetry', (i,)) for i, a in enumerate(AXES)),
-    *((f'ba_{a}', 'accel_bias_m_s2', (i,)) for i, a in enumerate(AXES)),
-)
+#: Estimated parameters: (name, SensorErrors field, index), from the parameter registry: Kg
+#: (its six symmetric pairs), ag, Ka, aa, ba, each in 45-vector order.
+PARAMS: tuple[tuple[str, str, tuple[int, ...]], ...] = registry.entries_of(
+    'gyroscope.scale_misalignment', 'gyroscope.scale_asymmetry',
+    'accelerometer.scale_misalignment', 'accelerometer.scale_asymmetry', 'accelerometer.bias')
 PARAM_NAMES = tuple(p[0] for p in PARAMS)
-N_GYRO_PARAMS = 9  # the first 9 act on the gyros (they need the DCM re-integrated)
+#: the first 9 act on the gyros (they need the DCM re-integrated)
+N_GYRO_PARAMS = sum(registry.PARAMETER_OF_FIELD[fld].section == 'gyroscope'
+                    for _, fld, _ in PARAMS)
 #: finite-difference step per parameter: dimensionless 1e-6, accel bias 1e-5 m/s^2
-_EPS = np.array([1e-6] * 21 + [1e-5] * 3)
+_EPS = np.array([1e-5 if fld == 'accel_bias_m_s2' else 1e-6 for _, fld, _ in PARAMS])
 
 #: Savage's Table 1 (restated in METHODS.md): initial down axis, axis along the outer
 #: fixture axis, and the sequential rotations about IMU axes (axis, degrees).
@@ -105,13 +102,11 @@ def add_errors(x: FloatArray, omega_rad_s: FloatArray, f_m_s2: FloatArray,
 
 def _errors_from_vector(x: FloatArray) -> dict[str, FloatArray]:
     """The SensorErrors fields touched by ``x`` (the others are not included)."""
-    out: dict[str, FloatArray] = {
-        'gyro_scale_misalignment': np.zeros((3, 3)), 'gyro_scale_asymmetry': np.zeros(3),
-        'accel_scale_misalignment': np.zeros((3, 3)), 'accel_scale_asymmetry': np.zeros(3),
-        'accel_bias_m_s2': np.zeros(3)}
+    out: dict[str, FloatArray] = {fld: np.zeros(registry.PARAMETER_OF_FIELD[fld].shape)
+                                  for _, fld, _ in PARAMS}
     for v, (_, fld, idx) in zip(x, PARAMS):
         out[fld][idx] = v
-        if fld == 'gyro_scale_misalignment':
+        if registry.PARAMETER_OF_FIELD[fld].symmetric:
             out[fld][idx[::-1]] = v
     return out
 
@@ -434,13 +429,11 @@ def solve(J: FloatArray, y: FloatArray, sigma: FloatArray, rtol: float = 1e-2,
 #: Parameters the SRT never estimates (CONTRACT 3 terms outside its linear model): (label,
 #: SensorErrors field, index, finite-difference step). G's step moves the rate by ~1e-6 rad/s
 #: (as Kg's); qa and r enter the specific force linearly, so their steps are exact.
-CONSIDER: tuple[tuple[str, str, tuple[int, ...], float], ...] = (
-    *((f'G_{a}{b}', 'gyro_g_sensitivity_rad_s_per_m_s2', (i, j), 1e-7)
-      for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
-    *((f'qa_{a}', 'accel_quadratic_per_m_s2', (i,), 1e-6) for i, a in enumerate(AXES)),
-    *((f'r_{a}{b}', 'size_effect_m', (i, j), 1e-3)
-      for i, a in enumerate(AXES) for j, b in enumerate(AXES) if i != j),
-)
+_CONSIDER_STEP = {'gyro_g_sensitivity_rad_s_per_m_s2': 1e-7, 'accel_quadratic_per_m_s2': 1e-6,
+                  'size_effect_m': 1e-3}
+CONSIDER: tuple[tuple[str, str, tuple[int, ...], float], ...] = tuple(
+    (name, fld, idx, _CONSIDER_STEP[fld]) for name, fld, idx in registry.entries_of(
+        'gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect'))
 
 
 def _window_mean(x: FloatArray, windows: Sequence[Window]) -> FloatArray:
@@ -614,28 +607,9 @@ def gyro_bias_from_windows(stamps_ns: NDArray[np.int64], gyro_rad_s: FloatArray,
 
 
 def _grade_sigmas(grade: Any) -> dict[str, FloatArray]:
-    """Assumed one-sigma of every SensorErrors field from an ImuGrade (zeros without one)."""
-    s = getattr(grade, 'sigma', None)
-
-    def get(name: str) -> float:
-        return float(getattr(s, name, 0.0)) if s is not None else 0.0
-
-    def mat(scale: str, mis: str) -> FloatArray:
-        return np.where(np.eye(3, dtype=bool), get(scale), get(mis))
-
-    r = np.full((3, 3), get('size_effect_m'))
-    np.fill_diagonal(r, 0.0)
-    return {
-        'gyro_bias_rad_s': np.full(3, get('gyro_bias_rad_s')),
-        'gyro_scale_misalignment': mat('gyro_scale', 'gyro_misalignment_rad'),
-        'gyro_scale_asymmetry': np.full(3, get('gyro_asymmetry')),
-        'gyro_g_sensitivity_rad_s_per_m_s2': np.full((3, 3), get('gyro_g_sensitivity')),
-        'accel_bias_m_s2': np.full(3, get('accel_bias_m_s2')),
-        'accel_scale_misalignment': mat('accel_scale', 'accel_misalignment_rad'),
-        'accel_scale_asymmetry': np.full(3, get('accel_asymmetry')),
-        'accel_quadratic_per_m_s2': np.full(3, get('accel_quadratic')),
-        'size_effect_m': r,
-    }
+    """Assumed one-sigma of every SensorErrors field from an ImuGrade (zeros without one):
+    :func:`~imu_calib_ros.core.parameters.grade_sigmas`."""
+    return registry.grade_sigmas(grade)
 
 
 #: SensorErrors field -> CONTRACT 4 key
@@ -788,7 +762,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         mask = _errors_from_vector(sol.estimated.astype(float))[fld] > 0
         sig[fld][mask] = val[mask]
     sig['gyro_bias_rad_s'] = np.sqrt(sig_bg ** 2 + (B_f ** 2) @ sig_consider ** 2)
-    fixed = ['gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect']
+    fixed = [registry.PARAMETER_OF_FIELD[fld].key for fld in _CONSIDER_STEP]  # G, qa, r
     not_est = [n for n, e in zip(PARAM_NAMES, sol.estimated) if not e]
     for fld, key in FIELD_KEYS.items():
         if any(PARAMS[i][1] == fld for i, n in enumerate(PARAM_NAMES) if n in not_est):
