@@ -166,3 +166,43 @@ def test_grade_sigma_maps_agree(name) -> None:
     assert list(priors.RAW_PRIOR) == [g.name for g in registry.SENSOR_GROUPS]
     assert set(priors.COARSE_FLOOR) == set(priors.RAW_PRIOR)
     assert all(not np.any(v) for v in srt._grade_sigmas(None).values())  # noqa: SLF001
+
+
+def test_misspelt_method_option_raises() -> None:
+    """The methods take typed frozen options: a misspelt option is an error, not ignored
+    (the old ``**_`` swallowed it)."""
+    from imu_calib_ros.core.methods import modulation, oscillation
+    for cls in (srt.SrtOptions, oscillation.OscillationOptions, modulation.DemodulationOptions):
+        with pytest.raises(TypeError):
+            cls(min_windows_s=2.0)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(cls(), 'min_window_s', 2.0)
+    for fn in (srt.estimate, srt.calibrate, oscillation.estimate, oscillation.calibrate):
+        with pytest.raises(TypeError):
+            fn(None, None, None, None, iteratons=2)
+        with pytest.raises(TypeError):
+            fn(None, None, None, None, min_window_s=2.0)  # an option, not a keyword
+    with pytest.raises(TypeError):
+        modulation.demodulate(None, None, None, 'continuous', causal=True)
+
+
+def test_method_options_are_used() -> None:
+    """An option reaches its method (the shortest window here), and the method returns a
+    CalibrationResult."""
+    from imu_calib_ros.core.errors import InputError
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.methods import oscillation
+    from imu_calib_ros.core.plans import build_profile, load_plan
+    from imu_calib_ros.core.simulator import SimConfig, simulate
+    fx = load_fixture('three_axis')
+    grade = load_grade('nav_grade')
+    sim = simulate(fx, build_profile(load_plan('demo_short'), fx), grade,
+                   SimConfig(imu_rate_hz=50, seed=1))
+    with pytest.raises(InputError, match='10000.0 s'):
+        srt.calibrate(sim.imu, sim.joints, fx, grade, srt.SrtOptions(min_window_s=1e4))
+    with pytest.raises(InputError):
+        oscillation.calibrate(sim.imu, sim.joints, fx, grade,
+                              oscillation.OscillationOptions(min_window_s=1e4))
+    res = srt.calibrate(sim.imu, sim.joints, fx, grade, srt.SrtOptions(iterations=1))
+    assert isinstance(res, CalibrationResult) and res.extra['method'] == 'srt'
+    assert len(res.extra['srt']['iterations']) == 1

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.integrate
@@ -66,6 +66,12 @@ from ..errors import InputError
 from ..kozlov import kozlov_c, kozlov_difference_factor, size_effect_mean_acceleration_enu
 from ..types import ImuBatch, JointBatch, sample_intervals_ns
 from .windows import Window, joint_positions, stationary_windows
+
+if TYPE_CHECKING:
+    from ..calibration import CalibrationResult
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
+    from ..sensor_model import SensorErrors
 
 FloatArray = NDArray[np.float64]
 
@@ -280,9 +286,24 @@ def _levelled(R_enu_imu: FloatArray, f_mean_imu: FloatArray) -> FloatArray:
     return Rotation.from_rotvec(axis / np.linalg.norm(axis) * ang).as_matrix() @ R_enu_imu
 
 
-def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None, *,
-             initial: Any = None, min_window_s: float = 4.0,
-             **_: Any) -> tuple[Any, Any, list[str], dict[str, Any]]:
+@dataclass(frozen=True)
+class OscillationOptions:
+    """Options of Kozlov & Kapralov's method (:func:`estimate`); a misspelt one is a
+    TypeError.
+
+    Attributes
+    ----------
+    min_window_s : float
+        Shortest stationary window.
+    """
+
+    min_window_s: float = 4.0
+
+
+def estimate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+             grade: ImuGrade | None = None, options: OscillationOptions = OscillationOptions(),
+             *, initial: CalibrationResult | None = None,
+             ) -> tuple[SensorErrors, SensorErrors, list[str], dict[str, Any]]:
     """Size effect from harmonic heading oscillations (Kozlov & Kapralov).
 
     Parameters
@@ -293,10 +314,10 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         Nominal fixture (kinematics, site).
     grade : ImuGrade, optional
         Only for the assumed sigmas of the parameters written as fixed.
+    options : OscillationOptions
+        The shortest stationary window.
     initial : CalibrationResult, optional
         Compensation applied before navigating (its size effect is ignored).
-    min_window_s : float
-        Shortest stationary window.
 
     Returns
     -------
@@ -315,7 +336,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     from ..strapdown import Strapdown
     from .srt import FIELD_KEYS, _fields, noise_densities
 
-    windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s)
+    windows = stationary_windows(imu, joints, fixture, min_duration_s=options.min_window_s)
     cycles = find_cycles(imu, joints, fixture, windows)
     if not cycles:
         raise InputError('no harmonic oscillation about a vertical axis between stationary '
@@ -437,10 +458,13 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     return SensorErrors(**errs), SensorErrors(**sig), fixed, extra
 
 
-def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
-              **opts: Any) -> Any:
-    """Kozlov & Kapralov's method as a CalibrationResult (CONTRACT 4)."""
+def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+              grade: ImuGrade | None = None, options: OscillationOptions = OscillationOptions(),
+              *, initial: CalibrationResult | None = None) -> CalibrationResult:
+    """Kozlov & Kapralov's method as a CalibrationResult (CONTRACT 4); arguments as
+    :func:`estimate`."""
     from ..calibration import CalibrationResult
-    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, **opts)
+    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, options,
+                                           initial=initial)
     return CalibrationResult(errors=errors, sigma=sigma, frame_id=imu.frame_id or 'imu_link',
                              fixed=tuple(fixed), extra=extra)

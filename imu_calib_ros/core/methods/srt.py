@@ -32,7 +32,7 @@ earth rate of the window's attitude), not from the rotation sequences.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -45,6 +45,12 @@ from ..errors import InputError
 from ..sensor_model import KEY_OF_FIELD
 from ..types import ImuBatch, JointBatch, sample_intervals_ns
 from .windows import Window, stationary_windows
+
+if TYPE_CHECKING:
+    from ..calibration import CalibrationResult
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
+    from ..sensor_model import SensorErrors
 
 FloatArray = NDArray[np.float64]
 AXES = 'xyz'
@@ -620,11 +626,34 @@ def _fields(errors: Any) -> dict[str, FloatArray]:
     return {k: np.array(getattr(errors, k), float) for k in FIELD_KEYS}
 
 
-def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
-              **opts: Any) -> Any:
-    """Savage's SRT as a CalibrationResult (CONTRACT 4); options as :func:`estimate`."""
+@dataclass(frozen=True)
+class SrtOptions:
+    """Options of Savage's SRT (:func:`estimate`); a misspelt one is a TypeError.
+
+    Attributes
+    ----------
+    iterations : int
+        Re-plays with the updated compensation (Savage sect. 8); 2-3 suffice.
+    min_window_s, window_margin_s : float
+        Shortest stationary window and the margin cut from its ends
+        (:func:`~.windows.stationary_windows`).
+    rtol : float
+        Relative tolerance of the rank detection (:func:`solve`).
+    """
+
+    iterations: int = 3
+    min_window_s: float = 4.0
+    window_margin_s: float = 0.5
+    rtol: float = 1e-2
+
+
+def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+              grade: ImuGrade | None = None, options: SrtOptions = SrtOptions(), *,
+              initial: CalibrationResult | None = None) -> CalibrationResult:
+    """Savage's SRT as a CalibrationResult (CONTRACT 4); arguments as :func:`estimate`."""
     from ..calibration import CalibrationResult
-    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, **opts)
+    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, options,
+                                           initial=initial)
     return CalibrationResult(errors=errors, sigma=sigma, frame_id=imu.frame_id or 'imu_link',
                              fixed=tuple(fixed), extra=extra)
 
@@ -644,10 +673,10 @@ def _consider_part(sol: LsqResult, J: FloatArray, J_f: FloatArray, prior_sd: Flo
                                sig_all)[0]
 
 
-def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None, *,
-             iterations: int = 3, initial: Any = None, min_window_s: float = 4.0,
-             window_margin_s: float = 0.5, rtol: float = 1e-2, **_ignored: Any,
-             ) -> tuple[Any, Any, list[str], dict[str, Any]]:
+def estimate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+             grade: ImuGrade | None = None, options: SrtOptions = SrtOptions(), *,
+             initial: CalibrationResult | None = None,
+             ) -> tuple[SensorErrors, SensorErrors, list[str], dict[str, Any]]:
     """Savage's SRT on a recording: windows, eqs. (1)-(2), linear model, least squares.
 
     Parameters
@@ -660,8 +689,8 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         Gives the assumed sigmas of the parameters the SRT does not estimate; the noise
         used for the sigmas is always measured from the stationary windows; its accelerometer
         bias instability and correlation time give the rows' drift covariance.
-    iterations : int
-        Re-plays with the updated compensation (Savage sect. 8); 2-3 suffice.
+    options : SrtOptions
+        Iterations, window lengths, rank tolerance.
     initial : CalibrationResult, optional
         Starting compensation (e.g. a previous SRT); its non-estimated values are kept.
 
@@ -677,8 +706,9 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     """
     from ..sensor_model import SensorErrors, compensate
 
+    iterations, min_window_s, rtol = options.iterations, options.min_window_s, options.rtol
     windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s,
-                                 margin_s=window_margin_s)
+                                 margin_s=options.window_margin_s)
     if len(windows) < 2:
         raise InputError(f'SRT needs stationary windows of >= {min_window_s} s before and '
                          f'after each rotation; found {len(windows)}')
