@@ -23,10 +23,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from .imu_grade import ErrorSigmas, ImuGrade
 
 FloatArray = NDArray[np.float64]
 Index = tuple[int, ...]
@@ -230,14 +233,14 @@ def element_unit(key: str, idx: Index) -> str:
     return (g if g is not None else display_group(key)).unit
 
 
-def grade_group_sigmas(sigma: Any) -> dict[str, float]:
+def grade_group_sigmas(sigma: ErrorSigmas) -> dict[str, float]:
     """Group name -> one-sigma of an :class:`~.imu_grade.ErrorSigmas` (SI), for the sensor
     groups in state order."""
     return {g.name: float(getattr(sigma, g.grade_field)) for g in SENSOR_GROUPS
             if g.grade_field is not None}
 
 
-def grade_sigmas(grade: Any) -> dict[str, FloatArray]:
+def grade_sigmas(grade: ImuGrade | None) -> dict[str, FloatArray]:
     """Assumed one-sigma of every SensorErrors field from an ImuGrade, by field in CONTRACT 4
     order (zeros without a grade or without its ``sigma:`` block); a symmetric matrix has
     both halves, a structural entry 0."""

@@ -11,7 +11,7 @@ prior: :func:`prior_correction` takes off what the re-centred prior mean added.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +23,8 @@ from .coarse import CoarseStart
 from .config import EstimatorConfig
 
 if TYPE_CHECKING:
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
     from .result import Estimate
 
 FloatArray = NDArray[np.float64]
@@ -42,7 +44,7 @@ COARSE_FLOOR: dict[str, float] = {g.name: g.coarse_floor for g in registry.SENSO
                                   if g.coarse_floor is not None}
 
 
-def prior_sigmas(grade: Any, config: EstimatorConfig,
+def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
                  start: CoarseStart | None = None) -> dict[str, FloatArray]:
     """One-sigma prior of every group in SI.
 
@@ -53,9 +55,9 @@ def prior_sigmas(grade: Any, config: EstimatorConfig,
     """
     k = config.prior_sigma_scale
     hint: dict[str, FloatArray] = {}
-    s = grade.sigma if grade is not None else None
-    if s is not None:  # a grade without sigma (a measured noise model) gives no hint
-        vals = registry.grade_group_sigmas(s)  # the registry's grade field of each group
+    if grade is not None and grade.sigma is not None:  # a grade without sigma (a measured
+        # noise model) gives no hint
+        vals = registry.grade_group_sigmas(grade.sigma)  # the registry's grade field per group
         hint = {n: np.full(em.GROUP_INFO[n][1], k * v) for n, v in vals.items()}
         # the filter estimates the total bias = turn-on constant + Gauss-Markov part
         hint['gyro_bias'] = np.hypot(hint['gyro_bias'], grade.gyro_bias_instability_rad_s)
@@ -96,7 +98,7 @@ def prior_vector(prior: dict[str, FloatArray], groups: tuple[str, ...]) -> Float
     return np.concatenate([prior[g] for g in groups]) if groups else np.zeros(0)
 
 
-def nominal_lever_arm(fixture: Any) -> FloatArray:
+def nominal_lever_arm(fixture: Fixture) -> FloatArray:
     """The nominal fixture's reference-point offset from the axes, IMU frame [m]."""
     if not getattr(fixture, 'concurrent', True):  # a general chain: from its anchor
         return fixture.lever_arm_imu_m  # type: ignore[no-any-return]
@@ -104,7 +106,8 @@ def nominal_lever_arm(fixture: Any) -> FloatArray:
     return fixture.R_enu_imu(q0).T @ fixture.p_enu_m(q0)
 
 
-def prior_point(fixture: Any, start: CoarseStart | None, layout: em.StateLayout) -> WorkingPoint:
+def prior_point(fixture: Fixture, start: CoarseStart | None,
+                layout: em.StateLayout) -> WorkingPoint:
     """The prior mean as fresh parameter arrays: the coarse start (issue 11), else no sensor
     errors; the nominal lever arm in the (mounted) IMU frame; the measured mounting rotation,
     else none. A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):

@@ -39,7 +39,7 @@ FloatArray = NDArray[np.float64]
 MODES = {'one': 1, 'two': 2, 'four': 4}
 
 
-def _setup(imu: ImuBatch, joints: JointBatch, fixture: Any, joint: str | None,
+def _setup(imu: ImuBatch, joints: JointBatch, fixture: Fixture, joint: str | None,
            ) -> tuple[int, FloatArray, FloatArray, FloatArray]:
     """Modulation joint index, its angle at the IMU stamps and at the interval starts, and
     its axis in the IMU frame."""
@@ -183,7 +183,7 @@ def _derotate(u: FloatArray, phi0: FloatArray, phi1: FloatArray, v_s: FloatArray
     return ax + (v_b - ax) / s[:, None]
 
 
-def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
+def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Fixture, *,
                           joint: str | None = None, causal: bool = False,
                           frame_id: str | None = None) -> ImuBatch:
     """Full-rate body-frame stream with the modulated biases removed (continuous mode).
@@ -215,7 +215,7 @@ def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
     return ImuBatch(imu.stamps_ns.copy(), w_b, f_b, frame_id or f'{imu.frame_id}_body')
 
 
-def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str = 'one', *,
+def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Fixture, mode: str = 'one', *,
                       joint: str | None = None, frame_id: str | None = None) -> ImuBatch:
     """The paper's one-, two- or four-point scheme (eqs. 12-14): output at the control points.
 

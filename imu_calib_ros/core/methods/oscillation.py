@@ -170,7 +170,7 @@ def _motion_interval(t_s: FloatArray, qk: FloatArray, rate_tol_rad_s: float) -> 
     return int(moving[0]), int(moving[-1]) + 1
 
 
-def find_cycles(imu: ImuBatch, joints: JointBatch, fixture: Any, windows: list[Window],
+def find_cycles(imu: ImuBatch, joints: JointBatch, fixture: Fixture, windows: list[Window],
                 vertical_tol_rad: float = 0.1, rate_tol_rad_s: float = 2e-3,
                 max_rms_fraction: float = 0.01) -> list[Cycle]:
     """Harmonic single-joint oscillations about a vertical axis between consecutive windows.

@@ -612,7 +612,7 @@ def gyro_bias_from_windows(stamps_ns: NDArray[np.int64], gyro_rad_s: FloatArray,
     return bias, np.maximum(sig_noise, sig_scatter)
 
 
-def _grade_sigmas(grade: Any) -> dict[str, FloatArray]:
+def _grade_sigmas(grade: ImuGrade | None) -> dict[str, FloatArray]:
     """Assumed one-sigma of every SensorErrors field from an ImuGrade (zeros without one):
     :func:`~imu_calib_ros.core.parameters.grade_sigmas`."""
     return registry.grade_sigmas(grade)
