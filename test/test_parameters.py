@@ -99,8 +99,16 @@ def test_units_derive_from_registry() -> None:
     assert units.ENGINEERING['accelerometer.quadratic'][1] == 1e-6 * 9.80665 / 9.80665 ** 2
     assert em.GROUPS == tuple((g.name, g.size, g.si_per_unit, g.unit, g.side)
                               for g in registry.GROUPS)
+    # the world oracle keeps its own tables, written from CONTRACT alone (docs/WORLD.md);
+    # they agree with the registry
+    assert world_cases.PARAMETER_KEYS == registry.PARAMETER_KEYS
     for g in registry.SENSOR_GROUPS:
         assert world_cases.ENGINEERING_UNITS[g.name] == (g.si_per_unit, g.unit)
+    for q in registry.PARAMETERS:
+        assert world_cases._entries(q.key) == [  # noqa: SLF001
+            (f'{g.name}[{g.entry_name(k)}]', g.name, idx)
+            for g in map(registry.group, registry.GROUPS_OF_KEY[q.key])
+            for k, idx in enumerate(g.entries)], q.key
 
 
 def test_filter_theta_derives_from_registry() -> None:

@@ -17,7 +17,9 @@ Two levels, both in fixed order:
 Every other ordering, unit table and grade-to-sigma map derives from these two tables:
 ``sensor_model`` (the 45-vector), ``units`` (display units), ``param_table`` and the report,
 ``estimator.error_model`` (theta and the state groups), ``estimator.priors`` and
-``estimator.result``, the SRT's 24 parameters and its consider terms, ``testing.world_cases``.
+``estimator.result``, the SRT's 24 parameters and its consider terms. The world oracle
+(``testing.world_cases``) keeps its own tables, written from CONTRACT alone; a test checks
+that they agree with these (test_parameters.py).
 """
 from __future__ import annotations
 

@@ -57,14 +57,23 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..core import parameters as registry
 from .world_sim import (Mounting, WorldConfig, joint_profile, simulate_to_files,
                         fixture_path as _fixture_path)
 from .world_units import UnitErrors, draw_unit
 
-#: group -> (SI value of one engineering unit, unit name): the parameter registry's
+G0_M_S2 = 9.80665
+_DEG_H = math.pi / 180.0 / 3600.0
+_UG = 1e-6 * G0_M_S2
+#: group -> (SI value of one engineering unit, unit name)
 ENGINEERING_UNITS: dict[str, tuple[float, str]] = {
-    g.name: (g.si_per_unit, g.unit) for g in registry.SENSOR_GROUPS}
+    'gyro_bias': (_DEG_H, 'deg/h'), 'gyro_scale': (1e-6, 'ppm'),
+    'gyro_misalignment': (1e-6, 'urad'), 'gyro_asymmetry': (1e-6, 'ppm'),
+    'gyro_g_sensitivity': (_DEG_H / G0_M_S2, 'deg/h/g'), 'accel_bias': (_UG, 'ug'),
+    'accel_scale': (1e-6, 'ppm'), 'accel_misalignment': (1e-6, 'urad'),
+    'accel_asymmetry': (1e-6, 'ppm'), 'accel_quadratic': (_UG / G0_M_S2 ** 2, 'ug/g^2'),
+    'size_effect': (1e-3, 'mm'),
+}
+_AX = 'xyz'
 
 
 @dataclass(frozen=True)
@@ -196,13 +205,35 @@ class Comparison:
 
 
 def _entries(key: str) -> list[tuple[str, str, tuple[int, ...]]]:
-    """(label, group, index) of the free values of one CONTRACT 4 key (registry order)."""
-    return [(f'{g.name}[{g.entry_name(k)}]', g.name, idx)
-            for g in map(registry.group, registry.GROUPS_OF_KEY[key])
-            for k, idx in enumerate(g.entries)]
+    """(label, group, index) of the free values of one CONTRACT 4 key."""
+    diag: list[tuple[int, ...]] = [(i,) * 2 for i in range(3)]
+    upper: list[tuple[int, ...]] = [(0, 1), (0, 2), (1, 2)]
+    off: list[tuple[int, ...]] = [(i, j) for i in range(3) for j in range(3) if i != j]
+    full: list[tuple[int, ...]] = [(i, j) for i in range(3) for j in range(3)]
+    vec: list[tuple[int, ...]] = [(i,) for i in range(3)]
+
+    def lab(g: str, idx: tuple[int, ...]) -> str:
+        # vectors and scale factors: one axis letter; other matrix entries: row, column
+        axes = idx[:1] if len(idx) == 1 or g.endswith('_scale') else idx
+        return f'{g}[{"".join(_AX[k] for k in axes)}]'
+    table: dict[str, list[tuple[str, list[tuple[int, ...]]]]] = {
+        'gyroscope.bias': [('gyro_bias', vec)],
+        'gyroscope.scale_misalignment': [('gyro_scale', diag), ('gyro_misalignment', upper)],
+        'gyroscope.scale_asymmetry': [('gyro_asymmetry', vec)],
+        'gyroscope.g_sensitivity': [('gyro_g_sensitivity', full)],
+        'accelerometer.bias': [('accel_bias', vec)],
+        'accelerometer.scale_misalignment': [('accel_scale', diag), ('accel_misalignment', off)],
+        'accelerometer.scale_asymmetry': [('accel_asymmetry', vec)],
+        'accelerometer.quadratic': [('accel_quadratic', vec)],
+        'accelerometer.size_effect': [('size_effect', off)],
+    }
+    return [(lab(g, idx), g, idx) for g, idxs in table[key] for idx in idxs]
 
 
-PARAMETER_KEYS: tuple[str, ...] = registry.PARAMETER_KEYS
+PARAMETER_KEYS: tuple[str, ...] = (
+    'gyroscope.bias', 'gyroscope.scale_misalignment', 'gyroscope.scale_asymmetry',
+    'gyroscope.g_sensitivity', 'accelerometer.bias', 'accelerometer.scale_misalignment',
+    'accelerometer.scale_asymmetry', 'accelerometer.quadratic', 'accelerometer.size_effect')
 
 
 def compare_calibration(calib: dict[str, Any], truth: dict[str, Any],
