@@ -138,8 +138,9 @@ def test_streaming_with_lost_samples_equals_offline_and_stays_near_the_full_data
                                positions_rad=jb.positions_rad[keepj],
                                velocities_rad_s=None if jb.velocities_rad_s is None
                                else jb.velocities_rad_s[keepj])
-    full = modulation.demodulate(imu, jb, fx, 'continuous', causal=True)
-    off = modulation.demodulate(sub, jsub, fx, 'continuous', causal=True)
+    causal = modulation.DemodulationOptions(causal=True)
+    full = modulation.demodulate(imu, jb, fx, causal)
+    off = modulation.demodulate(sub, jsub, fx, causal)
     k = list(fx.joint_names).index('outer')
     q0 = jb.positions_rad[0].copy()
     q0[k] = 0.0
@@ -205,8 +206,9 @@ def test_bursts_of_lost_samples_leave_the_output_right_while_the_table_turns():
         keep[s:s + rng.integers(5, 120)] = False
     sub = dataclasses.replace(imu, stamps_ns=imu.stamps_ns[keep],
                               gyro_rad_s=imu.gyro_rad_s[keep], accel_m_s2=imu.accel_m_s2[keep])
-    full = modulation.demodulate(imu, jb, fx, 'continuous', joint='inner', causal=True)
-    lossy = modulation.demodulate(sub, jb, fx, 'continuous', joint='inner', causal=True)
+    opts = modulation.DemodulationOptions('continuous', joint='inner', causal=True)
+    full = modulation.demodulate(imu, jb, fx, opts)
+    lossy = modulation.demodulate(sub, jb, fx, opts)
     t0 = imu.stamps_ns[0]
     steady = (lossy.stamps_ns > t0 + 6_000_000_000) & (lossy.stamps_ns < t0 + 61_000_000_000)
     jf = np.searchsorted(full.stamps_ns, lossy.stamps_ns[steady])

@@ -46,8 +46,8 @@ def test_node_output_equals_offline_causal(mode: str) -> None:
     sim = simulate(fx, build_profile(plan, fx), load_grade('mems_mti1'),
                    SimConfig(imu_rate_hz=100, joint_rate_hz=50, seed=2,
                              wrap_joint_positions=True))
-    kw = {'causal': True} if mode == 'continuous' else {}
-    ref = mod.demodulate(sim.imu, sim.joints, fx, mode, joint='inner', **kw)
+    ref = mod.demodulate(sim.imu, sim.joints, fx, mod.DemodulationOptions(
+        mode, joint='inner', causal=mode == 'continuous'))
     proc = subprocess.Popen(
         [sys.executable, '-m', 'imu_calib_ros.nodes.modulation', '--ros-args', '-p',
          'fixture:=three_axis', '-p', 'joint:=inner', '-p', f'mode:={mode}', '-p',
@@ -117,7 +117,8 @@ def test_node_under_sample_loss_is_right_or_withholds_and_says_so() -> None:
         {'dwell': {'duration_s': 0.5}}]})
     sim = simulate(fx, build_profile(plan, fx), load_grade('mems_mti1'),
                    SimConfig(imu_rate_hz=100, joint_rate_hz=50, seed=4))
-    full = mod.demodulate(sim.imu, sim.joints, fx, 'continuous', joint='inner', causal=True)
+    full = mod.demodulate(sim.imu, sim.joints, fx,
+                          mod.DemodulationOptions(joint='inner', causal=True))
     n = len(sim.imu)
     rng = np.random.default_rng(5)
     skip = np.zeros(n, bool)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 
-from ..core.errors import InputError
 from . import add_topic_arguments
 
 
@@ -36,16 +35,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def run(args: argparse.Namespace) -> int:
     """Read, demodulate, write."""
     from ..core.fixture import load_fixture
-    from ..core.methods.modulation import demodulate
+    from ..core.methods.modulation import DemodulationOptions, demodulate
     from msg_adapters.bag import read_bag, write_bag
     fixture = load_fixture(args.fixture)
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
-    if args.causal and args.mode != 'continuous':
-        raise InputError(f'--causal applies to --mode continuous only, not {args.mode}')
-    kw = {'joint': args.joint}
-    if args.mode == 'continuous':
-        kw['causal'] = args.causal
-    out = demodulate(imu, joints, fixture, args.mode, **kw)
+    # --causal with a point mode: demodulate's InputError (one line, CONTRACT 5)
+    out = demodulate(imu, joints, fixture,
+                     DemodulationOptions(args.mode, joint=args.joint, causal=args.causal))
     write_bag(args.output, out, joints, imu_topic=args.imu_topic,
               joint_topic=args.joint_topic, overwrite=args.overwrite)
     print(f'wrote {len(out)} body-frame samples ({args.mode}) to {args.output}')

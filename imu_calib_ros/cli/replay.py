@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 from msg_adapters import DEFAULT_REORDER_WINDOW_S
 
@@ -26,6 +26,7 @@ from ..core.errors import InputError, SelfCheckError
 from . import add_topic_arguments, add_urdf_arguments, check_output_file, urdf_options
 
 if TYPE_CHECKING:
+    from ..core.calibration import CalibrationResult
     from ..core.reorder import ReorderStats
 
 METHODS = ('ekf', 'srt', 'oscillation')
@@ -189,7 +190,9 @@ def run(args: Any) -> int:
     verdict = None  # the EKF's self-check
     if args.method != 'ekf':
         from ..core.methods import oscillation, srt
-        method = {'srt': srt.calibrate, 'oscillation': oscillation.calibrate}[args.method]
+        methods: dict[str, Callable[..., CalibrationResult]] = {
+            'srt': srt.calibrate, 'oscillation': oscillation.calibrate}
+        method = methods[args.method]
         imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic,
                                args.reorder_window, reorder)
         # the analytic methods take the parameters they do not solve for, and the consider

@@ -1,11 +1,11 @@
 """Calibration parameters for people: labelled blocks with per-element units (issue 12).
 
 The one owner of how a calibration is laid out for reading: each CONTRACT 4 parameter as a
-3-vector or a labelled 3x3 matrix, every entry in its engineering unit (:mod:`.units`: ppm on
-the diagonal of Kg and Ka, urad off it), with its one-sigma value, its significance
-``|value| / sigma`` and whether it was estimated or held fixed. A fixed entry is never shown
-as an estimate; a parameter held fixed at zero everywhere is folded into one line. The
-``replay`` terminal summary (:func:`format_text`), the HTML report
+3-vector or a labelled 3x3 matrix, every entry in its engineering unit (the registry,
+:mod:`.parameters`: ppm on the diagonal of Kg and Ka, urad off it), with its one-sigma value,
+its significance ``|value| / sigma`` and whether it was estimated or held fixed. A fixed entry
+is never shown as an estimate; a parameter held fixed at zero everywhere is folded into one
+line. The ``replay`` terminal summary (:func:`format_text`), the HTML report
 (:mod:`imu_calib_ros.report`) and the demo use these blocks.
 """
 from __future__ import annotations
@@ -16,11 +16,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .sensor_model import KEY_OF_FIELD
-from .units import ENGINEERING, element_unit
+from . import parameters as registry
 
 FloatArray = NDArray[np.float64]
-AXES = 'xyz'
+AXES = registry.AXES
 
 #: what the rows and columns of each matrix parameter mean (shown under its title)
 MATRIX_NOTES: dict[str, str] = {
@@ -47,7 +46,7 @@ def srt_not_estimated(res: Any) -> set[tuple[str, tuple[int, ...]]] | None:
     out = {(fld, tuple(idx)) for n, fld, idx in PARAMS if n in names}
     out |= {(fld, tuple(idx)) for _, fld, idx, _ in CONSIDER}
     for n, fld, idx in PARAMS:  # Kg is symmetric: both halves
-        if n in names and fld == 'gyro_scale_misalignment':
+        if n in names and registry.PARAMETER_OF_FIELD[fld].symmetric:
             out.add((fld, tuple(idx[::-1])))
     return out
 
@@ -111,7 +110,7 @@ class Block:
         """Indices of the parameter entries (no structural zeros, Kg's upper triangle)."""
         if not self.is_matrix:
             return [(i,) for i in range(3)]
-        sym = self.key == 'gyroscope.scale_misalignment'
+        sym = registry.parameter(self.key).symmetric
         return [(i, j) for i in range(3) for j in range(3)
                 if not self.structural[i, j] and not (sym and j < i)]
 
@@ -126,18 +125,19 @@ def blocks(res: Any, errors: Any = None) -> list[Block]:
     (SensorErrors) replaces its values, e.g. a truth's tracked errors."""
     errs = errors if errors is not None else res.errors
     out = []
-    for fld, key in KEY_OF_FIELD.items():
-        label, si, _ = ENGINEERING[key]
+    for p in registry.PARAMETERS:
+        fld, key = p.field, p.key
+        si = registry.display_group(key).si_per_unit
         v = np.asarray(getattr(errs, fld), float) / si
         s = np.asarray(getattr(res.sigma, fld), float) / si
         units = np.empty(v.shape, object)
         fixed = np.zeros(v.shape, bool)
         structural = np.zeros(v.shape, bool)
         for idx in np.ndindex(v.shape):
-            units[idx] = element_unit(key, idx)
+            units[idx] = registry.element_unit(key, idx)
             fixed[idx] = is_fixed(res, fld, key, idx)
-            structural[idx] = key == 'accelerometer.size_effect' and idx[0] == idx[1]
-        out.append(Block(key, fld, label, v, s, units, fixed, structural))
+            structural[idx] = p.canonical(idx) is None  # the size effect's zero diagonal
+        out.append(Block(key, fld, p.label, v, s, units, fixed, structural))
     return out
 
 

@@ -16,7 +16,7 @@ kappa_ij = kappa_ji). :func:`measure` is the forward model (noise-free, instanta
 :func:`compensate` its exact inverse.
 
 The fixed order of the 45 free parameters (:meth:`SensorErrors.as_vector`,
-:data:`PARAMETER_NAMES`, :data:`PARAMETER_SLICES`)::
+:data:`PARAMETER_NAMES`, :data:`PARAMETER_SLICES`; from the registry, :mod:`.parameters`)::
 
     0:3    gyroscope.bias                  bg (x, y, z)                 [rad/s]
     3:9    gyroscope.scale_misalignment    Kg xx, yy, zz, xy, xz, yz    (Kg[j][i] = Kg[i][j])
@@ -39,6 +39,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import parameters as registry
 from .config import require_mapping
 from .errors import ConfigError
 from .types import GAP_PERIODS, sample_intervals_ns
@@ -48,28 +49,20 @@ FloatArray = NDArray[np.float64]
 #: |Kg - Kg^T| above this is not symmetric (CONTRACT 3: symmetry is the definition).
 SYMMETRY_TOLERANCE = 1e-12
 
-_AXES = 'xyz'
 #: Upper-triangle index pairs of Kg in vector order.
-KG_PAIRS: tuple[tuple[int, int], ...] = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+KG_PAIRS: tuple[tuple[int, ...], ...] = registry.parameter(
+    'gyroscope.scale_misalignment').entries
 #: Off-diagonal size-effect index pairs (row i = r_i, component j) in vector order.
-SIZE_EFFECT_PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
-_FULL_PAIRS = tuple((i, j) for i in range(3) for j in range(3))
+SIZE_EFFECT_PAIRS: tuple[tuple[int, ...], ...] = registry.OFF_DIAGONAL
 
-# (dotted CONTRACT 4 key, dataclass field, shape, index pairs or None for a vector)
-_LAYOUT: tuple[tuple[str, str, tuple[int, ...], tuple[tuple[int, int], ...] | None], ...] = (
-    ('gyroscope.bias', 'gyro_bias_rad_s', (3,), None),
-    ('gyroscope.scale_misalignment', 'gyro_scale_misalignment', (3, 3), KG_PAIRS),
-    ('gyroscope.scale_asymmetry', 'gyro_scale_asymmetry', (3,), None),
-    ('gyroscope.g_sensitivity', 'gyro_g_sensitivity_rad_s_per_m_s2', (3, 3), _FULL_PAIRS),
-    ('accelerometer.bias', 'accel_bias_m_s2', (3,), None),
-    ('accelerometer.scale_misalignment', 'accel_scale_misalignment', (3, 3), _FULL_PAIRS),
-    ('accelerometer.scale_asymmetry', 'accel_scale_asymmetry', (3,), None),
-    ('accelerometer.quadratic', 'accel_quadratic_per_m_s2', (3,), None),
-    ('accelerometer.size_effect', 'size_effect_m', (3, 3), SIZE_EFFECT_PAIRS),
-)
+# (dotted CONTRACT 4 key, dataclass field, shape, index pairs or None for a vector): the
+# registry's parameters (core/parameters.py), in its order
+_LAYOUT: tuple[tuple[str, str, tuple[int, ...], tuple[tuple[int, ...], ...] | None], ...] = \
+    tuple((p.key, p.field, p.shape, p.entries if p.is_matrix else None)
+          for p in registry.PARAMETERS)
 
 #: The CONTRACT section 4 keys (dotted, below ``imu_calibration``), in vector order.
-PARAMETER_KEYS: tuple[str, ...] = tuple(k for k, *_ in _LAYOUT)
+PARAMETER_KEYS: tuple[str, ...] = registry.PARAMETER_KEYS
 #: Dotted key -> dataclass field name.
 FIELD_OF_KEY: dict[str, str] = {k: f for k, f, *_ in _LAYOUT}
 #: SensorErrors field -> dotted CONTRACT 4 key (the inverse of FIELD_OF_KEY)
@@ -79,16 +72,9 @@ KEY_OF_FIELD: dict[str, str] = {f: k for k, f, *_ in _LAYOUT}
 def _build_index() -> tuple[dict[str, slice], tuple[str, ...]]:
     slices: dict[str, slice] = {}
     names: list[str] = []
-    start = 0
-    for key, _, shape, pairs in _LAYOUT:
-        if pairs is None:
-            names += [f'{key}[{_AXES[i]}]' for i in range(shape[0])]
-            count = shape[0]
-        else:
-            names += [f'{key}[{_AXES[i]}{_AXES[j]}]' for i, j in pairs]
-            count = len(pairs)
-        slices[key] = slice(start, start + count)
-        start += count
+    for p in registry.PARAMETERS:
+        slices[p.key] = slice(len(names), len(names) + len(p.entries))
+        names += [p.entry_name(idx) for idx in p.entries]
     return slices, tuple(names)
 
 
@@ -157,9 +143,9 @@ class SensorErrors:
                 kwargs[name] = seg.copy()
                 continue
             m = np.zeros(shape)
-            for v, (i, j) in zip(seg, pairs):
-                m[i, j] = v
-            if key == 'gyroscope.scale_misalignment':
+            for v, idx in zip(seg, pairs):
+                m[idx] = v
+            if registry.parameter(key).symmetric:
                 m = np.triu(m) + np.triu(m, 1).T
             kwargs[name] = m
         return cls(**kwargs)
@@ -170,7 +156,7 @@ class SensorErrors:
         for key, name, _, pairs in _LAYOUT:
             a = getattr(self, name)
             sl = PARAMETER_SLICES[key]
-            out[sl] = a if pairs is None else [a[i, j] for i, j in pairs]
+            out[sl] = a if pairs is None else [a[idx] for idx in pairs]
         return out
 
     def get(self, key: str) -> FloatArray:

@@ -17,6 +17,7 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
+from ..core import parameters as registry  # noqa: E402
 from ..core.param_table import is_fixed, srt_not_estimated  # noqa: E402,F401
 from ..core.sensor_model import KEY_OF_FIELD  # noqa: E402
 from ..core.units import ENGINEERING, UG_M_S2, element_unit  # noqa: E402
@@ -41,14 +42,9 @@ def _png(fig: Any) -> str:
             + base64.b64encode(buf.getvalue()).decode('ascii') + '"/>')
 
 
-def _entries(fld: str) -> list[tuple[int, ...]]:
-    if fld in ('gyro_scale_misalignment',):
-        return [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
-    if fld in ('accel_scale_misalignment', 'gyro_g_sensitivity_rad_s_per_m_s2'):
-        return [(i, j) for i in range(3) for j in range(3)]
-    if fld == 'size_effect_m':
-        return [(i, j) for i in range(3) for j in range(3) if i != j]
-    return [(i,) for i in range(3)]
+def _entries(fld: str) -> tuple[tuple[int, ...], ...]:
+    """The free entries of a SensorErrors field (45-vector order, the registry's)."""
+    return registry.PARAMETER_OF_FIELD[fld].entries
 
 
 def comparison_table(results: Sequence[tuple[str, Any]], truth: Any | None) -> str:
@@ -159,17 +155,9 @@ def velocity_plot(extra: dict[str, Any]) -> str | None:
     return _png(fig)
 
 
-UNIT_NAMES = {'ppm/g': 'ug/g^2'}  # the same unit; the parameter blocks' name
-
-
 def _element(group: str, i: int) -> str:
-    """``'x'``, ``'xy'``: the entry a state of ``group`` is (error_model's orders)."""
-    from ..core.estimator.error_model import MIS_SYM, OFF6
-    pairs = {'gyro_misalignment': MIS_SYM, 'accel_misalignment': OFF6, 'size_effect': OFF6,
-             'gyro_g_sensitivity': tuple((a, b) for a in range(3) for b in range(3))}
-    if group in pairs:
-        return ''.join('xyz'[k] for k in pairs[group][i])
-    return 'xyz'[i] if i < 3 else str(i)
+    """``'x'``, ``'xy'``: the entry a state of ``group`` is (the registry's orders)."""
+    return registry.group(group).entry_name(i)
 
 
 def _history_groups(h: dict[str, Any]) -> list[tuple[str, list[int], float, str]]:
@@ -219,7 +207,7 @@ def convergence_plot(extra: dict[str, Any], truth_values: dict[str, float] | Non
         if np.isfinite(hi) and hi > 0:
             ax.set_ylim(-hi, hi)
         ax.axhline(0.0, color='k', lw=0.4)
-        ax.set_title(f'{g} minus its final value [{UNIT_NAMES.get(unit, unit)}]', fontsize=9)
+        ax.set_title(f'{g} minus its final value [{unit}]', fontsize=9)
         ax.tick_params(labelsize=7)
         if len(cols) <= 9:
             ax.legend(fontsize=6, ncol=3, loc='upper right', framealpha=0.6)
@@ -245,10 +233,9 @@ def sigma_plot(extra: dict[str, Any]) -> str | None:
     groups = _history_groups(h)
     if not groups or len(t) < 2:
         return None
-    sides = (('gyroscope', lambda g: g.startswith('gyro')),
-             ('accelerometer', lambda g: g.startswith('accel') or g in ('size_effect',
-                                                                         'time_offset')),
-             ('fixture (lever arm, mounting)', lambda g: g in ('lever_arm', 'mounting')))
+    sides = (('gyroscope', lambda g: registry.group(g).side == 'g'),
+             ('accelerometer', lambda g: registry.group(g).side == 'a'),
+             ('fixture (lever arm, mounting)', lambda g: registry.group(g).side == ''))
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.4), sharey=True)
     for ax, (title, pick) in zip(axes, sides):
         k = 0

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +25,9 @@ from . import error_model as em
 from .config import EstimatorConfig
 from .ekf import chunk_transition_rows
 from .error_model import StateLayout
+
+if TYPE_CHECKING:
+    from ..fixture import Fixture
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -77,7 +80,7 @@ def level(R_enu_imu_fixture: FloatArray, f_imu_m_s2: FloatArray) -> FloatArray:
 
 
 def align(t_ns: IntArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, q_rad: FloatArray,
-          errors: Any, mounting_rotvec_rad: FloatArray, fixture: Any,
+          errors: Any, mounting_rotvec_rad: FloatArray, fixture: Fixture,
           update_rate_hz: float) -> Alignment | None:
     """Coarse alignment on a stationary window.
 

@@ -12,7 +12,7 @@ known. This module holds and measures; :mod:`.coarse` is the maths.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +21,9 @@ from ..errors import InputError
 from .buffers import point_to_mean
 from .coarse import CoarseStart, NoRotation, coarse_start
 from .config import EstimatorConfig
+
+if TYPE_CHECKING:
+    from ..fixture import Fixture
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -86,7 +89,7 @@ class Bootstrap:
             return None
         return t, w, f, tj, qj
 
-    def measure(self, fixture: Any, final: bool,
+    def measure(self, fixture: Fixture, final: bool,
                 t_cut_ns: int | None = None) -> tuple[bool, CoarseStart | None]:
         """Measure the coarse start on the held data up to ``t_cut_ns``.
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,6 +41,9 @@ from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
 from . import error_model as em
+
+if TYPE_CHECKING:
+    from ..fixture import Fixture
 
 FloatArray = NDArray[np.float64]
 
@@ -265,7 +268,7 @@ def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatA
     return qd
 
 
-def _rate_nominal(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: float
+def _rate_nominal(fixture: Fixture, spline: CubicSpline, t_s: FloatArray, tol_rad: float
                   ) -> tuple[FloatArray, ...]:
     """Joint angles, the nominal IMU frame's inertial rate in that frame, and |rate|."""
     q = spline(t_s)
@@ -280,7 +283,7 @@ def _rate_nominal(fixture: Any, spline: CubicSpline, t_s: FloatArray, tol_rad: f
 LATENCY_WINDOW_S = 0.04  # rates compared as means over this many seconds (see below)
 
 
-def measure_latency(fixture: Any, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
+def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
                     bias: FloatArray, dt_s: float, select: NDArray[np.intp]
                     ) -> tuple[float, float]:
     """Shift ``s`` [s] with ``|mean w - bias| ~ |mean encoder rate|`` over the same window
@@ -467,7 +470,7 @@ def _cluster_lstsq(X: FloatArray, y: FloatArray, block: NDArray[np.intp], beta0:
 
 
 def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
-                 t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Any,
+                 t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
                  max_samples: int = 60_000) -> CoarseStart:
     """The start point from interval-mean IMU samples and (unwrapped) joint states.

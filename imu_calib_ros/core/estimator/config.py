@@ -10,6 +10,7 @@ import os
 from dataclasses import dataclass
 from typing import Literal
 
+from .. import parameters as registry
 from ..config import load_config, resolve_config_file, setting
 
 __all__ = ['EstimatorConfig', 'load_estimator_config']
@@ -125,10 +126,7 @@ class EstimatorConfig:
     @property
     def estimated_groups(self) -> tuple[str, ...]:
         """The sensor-error and auxiliary groups switched on, in state order."""
-        names = ('gyro_bias', 'gyro_scale', 'gyro_asymmetry', 'gyro_misalignment',
-                 'gyro_g_sensitivity', 'accel_bias', 'accel_scale', 'accel_asymmetry',
-                 'accel_misalignment', 'accel_quadratic', 'size_effect', 'time_offset',
-                 'lever_arm')
+        names = (g.name for g in registry.GROUPS if g.name != 'mounting')  # state order
         out = [n for n in names if getattr(self, f'estimate_{n}')]
         if self.attitude_aiding:
             out.append('mounting')

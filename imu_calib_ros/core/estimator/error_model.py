@@ -23,34 +23,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import parameters as registry
 from ..rotation import skew  # noqa: F401  (re-exported for the filter maths)
 
 FloatArray = NDArray[np.float64]
 
-DEG_H = np.pi / 180.0 / 3600.0  # rad/s per deg/h
-G0 = 9.80665  # m/s^2 per g (the unit "ug" of the summary; not the site's gravity)
-PPM = 1e-6
-URAD = 1e-6
-MM = 1e-3
+DEG_H = registry.DEG_H_RAD_S  # rad/s per deg/h
+G0 = registry.G0_M_S2  # m/s^2 per g (the unit "ug" of the summary; not the site's gravity)
+PPM = registry.PPM
+URAD = registry.URAD
+MM = registry.MM
 
 # (group, size, SI per engineering unit, unit label, side) - side g: gyro Jacobian columns,
-# a: accel Jacobian columns, '': measurement-only states.
-GROUPS: tuple[tuple[str, int, float, str, str], ...] = (
-    ('gyro_bias', 3, DEG_H, 'deg/h', 'g'),
-    ('gyro_scale', 3, PPM, 'ppm', 'g'),
-    ('gyro_asymmetry', 3, PPM, 'ppm', 'g'),
-    ('gyro_misalignment', 3, URAD, 'urad', 'g'),
-    ('gyro_g_sensitivity', 9, DEG_H / G0, 'deg/h/g', 'g'),
-    ('accel_bias', 3, 1e-6 * G0, 'ug', 'a'),
-    ('accel_scale', 3, PPM, 'ppm', 'a'),
-    ('accel_asymmetry', 3, PPM, 'ppm', 'a'),
-    ('accel_misalignment', 6, URAD, 'urad', 'a'),
-    ('accel_quadratic', 3, PPM / G0, 'ppm/g', 'a'),
-    ('size_effect', 6, MM, 'mm', 'a'),
-    ('time_offset', 1, 1e-6, 'us', 'a'),
-    ('lever_arm', 3, MM, 'mm', ''),
-    ('mounting', 3, URAD, 'urad', ''),
-)
+# a: accel Jacobian columns, '': measurement-only states (the registry's groups, its order)
+GROUPS: tuple[tuple[str, int, float, str, str], ...] = tuple(
+    (g.name, g.size, g.si_per_unit, g.unit, g.side) for g in registry.GROUPS)
 GROUP_INFO = {g[0]: g for g in GROUPS}
 GYRO_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'g')
 ACCEL_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'a')
@@ -58,8 +45,8 @@ N_GYRO = sum(g[1] for g in GROUPS if g[4] == 'g')  # 21 columns of the full M_g
 N_ACCEL = sum(g[1] for g in GROUPS if g[4] == 'a')  # 26 columns of the full M_a
 
 # index pairs of the off-diagonal parameters (row i, column j); row-major order
-MIS_SYM = ((0, 1), (0, 2), (1, 2))  # Kg[i][j] == Kg[j][i]
-OFF6 = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))  # Ka and size effect r_i[j]
+MIS_SYM = registry.group('gyro_misalignment').entries  # Kg[i][j] == Kg[j][i]
+OFF6 = registry.OFF_DIAGONAL  # Ka and size effect r_i[j]
 
 
 def _offsets(groups: tuple[str, ...]) -> dict[str, slice]:
@@ -202,50 +189,48 @@ class StateLayout:
 
 # --- SensorErrors <-> flat parameter vectors ---------------------------------------------
 
+def _theta_entries(cols: dict[str, slice]) -> tuple[tuple[str, slice, tuple[NDArray[
+        np.intp], ...], bool], ...]:
+    """(SensorErrors field, columns, index arrays, symmetric) of each sensor group of one
+    parameter vector, in the registry's order."""
+    out = []
+    for g in registry.SENSOR_GROUPS:
+        if g.name in cols and g.key is not None:
+            p = registry.parameter(g.key)
+            idx = tuple(np.array(k, np.intp) for k in zip(*g.entries))
+            out.append((p.field, cols[g.name], idx, p.symmetric))
+    return tuple(out)
+
+
+_GYRO_ENTRIES = _theta_entries(_GYRO_COLS)
+_ACCEL_ENTRIES = _theta_entries(_ACCEL_COLS)
+
+
 def theta_from_errors(errors: Any) -> tuple[FloatArray, FloatArray]:
-    """The full gyro (21,) and accel (26,) parameter vectors of a ``SensorErrors``.
+    """The full gyro (21,) and accel (25,) parameter vectors of a ``SensorErrors`` (the
+    registry's groups; Kg's pairs as the mean of both halves).
 
     The time offset (last accel entry) is not part of ``SensorErrors`` and is returned as 0.
     """
-    kg = np.asarray(errors.gyro_scale_misalignment, float)
-    ka = np.asarray(errors.accel_scale_misalignment, float)
-    r = np.asarray(errors.size_effect_m, float)
-    tg = np.concatenate([
-        np.asarray(errors.gyro_bias_rad_s, float), np.diag(kg),
-        np.asarray(errors.gyro_scale_asymmetry, float),
-        [0.5 * (kg[i, j] + kg[j, i]) for i, j in MIS_SYM],
-        np.asarray(errors.gyro_g_sensitivity_rad_s_per_m_s2, float).ravel()])
-    ta = np.concatenate([
-        np.asarray(errors.accel_bias_m_s2, float), np.diag(ka),
-        np.asarray(errors.accel_scale_asymmetry, float),
-        [ka[i, j] for i, j in OFF6],
-        np.asarray(errors.accel_quadratic_per_m_s2, float),
-        [r[i, j] for i, j in OFF6], [0.0]])
-    return tg, ta
+    out = []
+    for n, entries in ((N_GYRO, _GYRO_ENTRIES), (N_ACCEL, _ACCEL_ENTRIES)):
+        theta = np.zeros(n)
+        for fld, cols, idx, sym in entries:
+            a = np.asarray(getattr(errors, fld), float)
+            theta[cols] = 0.5 * (a[idx] + a[idx[::-1]]) if sym else a[idx]
+        out.append(theta)
+    return out[0], out[1]
 
 
 def errors_from_theta(theta_g: FloatArray, theta_a: FloatArray, cls: type) -> Any:
     """Build ``cls`` (``SensorErrors``) from the full parameter vectors (inverse of above)."""
-    c = _GYRO_COLS
-    kg = np.diag(theta_g[c['gyro_scale']])
-    for k, (i, j) in enumerate(MIS_SYM):
-        kg[i, j] = kg[j, i] = theta_g[c['gyro_misalignment'].start + k]
-    d = _ACCEL_COLS
-    ka = np.diag(theta_a[d['accel_scale']])
-    r = np.zeros((3, 3))
-    for k, (i, j) in enumerate(OFF6):
-        ka[i, j] = theta_a[d['accel_misalignment'].start + k]
-        r[i, j] = theta_a[d['size_effect'].start + k]
-    return cls(
-        gyro_bias_rad_s=np.array(theta_g[c['gyro_bias']]),
-        gyro_scale_misalignment=kg,
-        gyro_scale_asymmetry=np.array(theta_g[c['gyro_asymmetry']]),
-        gyro_g_sensitivity_rad_s_per_m_s2=theta_g[c['gyro_g_sensitivity']].reshape(3, 3).copy(),
-        accel_bias_m_s2=np.array(theta_a[d['accel_bias']]),
-        accel_scale_misalignment=ka,
-        accel_scale_asymmetry=np.array(theta_a[d['accel_asymmetry']]),
-        accel_quadratic_per_m_s2=np.array(theta_a[d['accel_quadratic']]),
-        size_effect_m=r)
+    arrays = {p.field: np.zeros(p.shape) for p in registry.PARAMETERS}
+    for theta, entries in ((theta_g, _GYRO_ENTRIES), (theta_a, _ACCEL_ENTRIES)):
+        for fld, cols, idx, sym in entries:
+            arrays[fld][idx] = theta[cols]
+            if sym:
+                arrays[fld][idx[::-1]] = theta[cols]
+    return cls(**arrays)
 
 
 def gyro_cols(name: str) -> slice:

@@ -14,7 +14,7 @@ applies ``exp(mu) = exp(mu_hat) exp(-x_mu)``).
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,9 @@ from scipy.spatial.transform import Rotation
 
 from ..rotation import skew
 from .error_model import StateLayout
+
+if TYPE_CHECKING:
+    from ..fixture import Fixture
 
 FloatArray = NDArray[np.float64]
 MEAS_SCALE = 1e-6  # velocity measurements in um/s, attitude in urad inside the filter
@@ -175,7 +178,7 @@ def chain_velocity_covariance(fixtures: tuple[Any, ...], q: FloatArray, qd: Floa
     return C
 
 
-def chain_attitude_covariance(fixture: Any, q: FloatArray, joint_offset_sigma_rad: float,
+def chain_attitude_covariance(fixture: Fixture, q: FloatArray, joint_offset_sigma_rad: float,
                               correlation: float) -> FloatArray:
     """Covariance (B, 3, 3) [rad^2] of the encoder attitude of a general chain from its joint
     zero offsets: an offset ``dq_j`` turns the IMU by ``dq_j u_j`` (ENU); systematic over a
@@ -184,7 +187,7 @@ def chain_attitude_covariance(fixture: Any, q: FloatArray, joint_offset_sigma_ra
     return (joint_offset_sigma_rad ** 2 * correlation) * np.einsum('bni,bnj->bij', u, u)
 
 
-def lengthened_chains(fixture: Any, dl_m: float = 1e-3) -> tuple[Any, ...]:
+def lengthened_chains(fixture: Fixture, dl_m: float = 1e-3) -> tuple[Any, ...]:
     """``(fixture, copies with joint origin j lengthened by dl_m along itself ...)`` for the
     joints with an origin offset (:func:`chain_velocity_covariance`)."""
     from dataclasses import replace

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +20,9 @@ from numpy.typing import NDArray
 from .coarse import CoarseStart
 from .ekf import process_noise
 from .error_model import StateLayout
+
+if TYPE_CHECKING:
+    from ..imu_grade import ImuGrade
 
 FloatArray = NDArray[np.float64]
 _LOG = logging.getLogger('imu_calib_ros.estimator')
@@ -49,7 +52,7 @@ ACCEL_BIAS_WALK = 0.015  # the accelerometer's, any class without a grade
 WHITE_NOISE_FLOOR = (1.2e-8, 1.0e-6)
 
 
-def white_noise_densities(start: CoarseStart | None, grade: Any,
+def white_noise_densities(start: CoarseStart | None, grade: ImuGrade | None,
                           noise_source: str) -> tuple[float, float]:
     """White-noise densities ``(gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz))`` for Q: measured
     (coarse start) or the grade's (``noise_source``; the data's when there is no grade)."""
@@ -97,7 +100,7 @@ def gyro_bias_floor_rad_s(grade: Any) -> float:
     return math.sqrt(grade.gyro_noise_rad_s_rt_hz * math.sqrt(grade_bias_walk(grade)[0]))
 
 
-def bias_random_walk(grade: Any, start: CoarseStart | None,
+def bias_random_walk(grade: ImuGrade | None, start: CoarseStart | None,
                      mems_gyro_noise_rad_s_rt_hz: float) -> tuple[float, float]:
     """Spectral densities of the gyro and accelerometer bias random walk ``(q_g, q_a)``
     [(rad/s)^2/s, (m/s^2)^2/s]: the grade's (Gauss-Markov ``2 sigma^2 / tau`` + random walk),
@@ -204,7 +207,7 @@ class ProcessNoise:
         return True
 
 
-def check_grade_hint(grade: Any, start: CoarseStart, noise_source: str) -> None:
+def check_grade_hint(grade: ImuGrade | None, start: CoarseStart, noise_source: str) -> None:
     """Log one line when the data disagree with the grade the user gave (white noise more
     than a factor 2 away from the grade's)."""
     gr = grade

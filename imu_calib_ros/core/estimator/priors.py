@@ -11,43 +11,40 @@ prior: :func:`prior_correction` takes off what the re-centred prior mean added.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from .. import parameters as registry
 from . import error_model as em
 from .coarse import CoarseStart
 from .config import EstimatorConfig
 
 if TYPE_CHECKING:
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
     from .result import Estimate
 
 FloatArray = NDArray[np.float64]
-# the filter's working point: theta_gyro (21,), theta_accel (26,) in error_model order, the
+# the filter's working point: theta_gyro (21,), theta_accel (25,) in error_model order, the
 # lever arm (3,) [m] and the mounting rotation vector (3,) [rad], both in the IMU frame
 WorkingPoint = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
 
 # Wide priors of an uncalibrated unit (SI), for what the coarse start does not measure:
 # the largest raw errors the product is specified for (issue 11: MEMS scale 3 %, misalignment
-# 30 mrad, gyro bias 1 deg/s, accel bias 100 mg, size effect 2 cm).
-RAW_PRIOR: dict[str, float] = {
-    'gyro_bias': 1.75e-2, 'gyro_scale': 3e-2, 'gyro_asymmetry': 3e-3,
-    'gyro_misalignment': 3e-2, 'gyro_g_sensitivity': 1.8e-5, 'accel_bias': 1.0,
-    'accel_scale': 3e-2, 'accel_asymmetry': 3e-3, 'accel_misalignment': 3e-2,
-    'accel_quadratic': 1e-4, 'size_effect': 2e-2}
+# 30 mrad, gyro bias 1 deg/s, accel bias 100 mg, size effect 2 cm); the registry's.
+RAW_PRIOR: dict[str, float] = {g.name: g.raw_prior for g in registry.SENSOR_GROUPS
+                               if g.raw_prior is not None}
 # Least prior around a coarse value, for the model errors of the coarse fit (accelerometer
 # asymmetry and quadratic terms are not in it; they shift bias and scale by ~aa g, which the
-# fit's residuals, hence its sigmas, also show).
-COARSE_FLOOR: dict[str, float] = {
-    'gyro_bias': 4.8e-9, 'gyro_scale': 1e-5, 'gyro_asymmetry': 1e-5,
-    'gyro_misalignment': 1e-5, 'gyro_g_sensitivity': 1e-8, 'accel_bias': 1e-3,
-    'accel_scale': 2e-4, 'accel_misalignment': 2e-4, 'accel_asymmetry': 3e-3,
-    'accel_quadratic': 1e-4, 'size_effect': 2e-2}
+# fit's residuals, hence its sigmas, also show); the registry's.
+COARSE_FLOOR: dict[str, float] = {g.name: g.coarse_floor for g in registry.SENSOR_GROUPS
+                                  if g.coarse_floor is not None}
 
 
-def prior_sigmas(grade: Any, config: EstimatorConfig,
+def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
                  start: CoarseStart | None = None) -> dict[str, FloatArray]:
     """One-sigma prior of every group in SI.
 
@@ -58,16 +55,10 @@ def prior_sigmas(grade: Any, config: EstimatorConfig,
     """
     k = config.prior_sigma_scale
     hint: dict[str, FloatArray] = {}
-    s = grade.sigma if grade is not None else None
-    if s is not None:  # a grade without sigma (a measured noise model) gives no hint
-        vals = {
-            'gyro_bias': s.gyro_bias_rad_s, 'gyro_scale': s.gyro_scale,
-            'gyro_asymmetry': s.gyro_asymmetry, 'gyro_misalignment': s.gyro_misalignment_rad,
-            'gyro_g_sensitivity': s.gyro_g_sensitivity, 'accel_bias': s.accel_bias_m_s2,
-            'accel_scale': s.accel_scale, 'accel_asymmetry': s.accel_asymmetry,
-            'accel_misalignment': s.accel_misalignment_rad,
-            'accel_quadratic': s.accel_quadratic, 'size_effect': s.size_effect_m}
-        hint = {n: np.full(em.GROUP_INFO[n][1], k * float(v)) for n, v in vals.items()}
+    if grade is not None and grade.sigma is not None:  # a grade without sigma (a measured
+        # noise model) gives no hint
+        vals = registry.grade_group_sigmas(grade.sigma)  # the registry's grade field per group
+        hint = {n: np.full(em.GROUP_INFO[n][1], k * v) for n, v in vals.items()}
         # the filter estimates the total bias = turn-on constant + Gauss-Markov part
         hint['gyro_bias'] = np.hypot(hint['gyro_bias'], grade.gyro_bias_instability_rad_s)
         hint['accel_bias'] = np.hypot(hint['accel_bias'], grade.accel_bias_instability_m_s2)
@@ -107,7 +98,7 @@ def prior_vector(prior: dict[str, FloatArray], groups: tuple[str, ...]) -> Float
     return np.concatenate([prior[g] for g in groups]) if groups else np.zeros(0)
 
 
-def nominal_lever_arm(fixture: Any) -> FloatArray:
+def nominal_lever_arm(fixture: Fixture) -> FloatArray:
     """The nominal fixture's reference-point offset from the axes, IMU frame [m]."""
     if not getattr(fixture, 'concurrent', True):  # a general chain: from its anchor
         return fixture.lever_arm_imu_m  # type: ignore[no-any-return]
@@ -115,7 +106,8 @@ def nominal_lever_arm(fixture: Any) -> FloatArray:
     return fixture.R_enu_imu(q0).T @ fixture.p_enu_m(q0)
 
 
-def prior_point(fixture: Any, start: CoarseStart | None, layout: em.StateLayout) -> WorkingPoint:
+def prior_point(fixture: Fixture, start: CoarseStart | None,
+                layout: em.StateLayout) -> WorkingPoint:
     """The prior mean as fresh parameter arrays: the coarse start (issue 11), else no sensor
     errors; the nominal lever arm in the (mounted) IMU frame; the measured mounting rotation,
     else none. A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):

@@ -13,7 +13,7 @@ far ahead the joint states are, nor on the IMU batch sizes: tested).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
@@ -23,6 +23,10 @@ from .config import EstimatorConfig
 from .estimator import CalibrationEstimator, Estimate
 from .run_ledger import RunLedger
 from .selfcheck import SelfCheckConfig, Verdict
+
+if TYPE_CHECKING:
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
 
 
 def _batches_of_samples(samples: Any, batch: int) -> Iterator[ImuBatch | JointBatch]:
@@ -112,7 +116,7 @@ class ReplayRun:
     extra_passes: tuple[str, ...] = ()
 
 
-def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
+def replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config: EstimatorConfig,
                 initial: Estimate | None = None, batch: int = 4000,
                 progress: Callable[[int], None] | None = None,
                 start: Any = None) -> CalibrationEstimator:
@@ -129,7 +133,7 @@ def replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
     return _replay_pass(samples, fixture, grade, config, initial, batch, progress, start)[0]
 
 
-def _replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig,
+def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config: EstimatorConfig,
                  initial: Estimate | None, batch: int, progress: Callable[[int], None] | None,
                  start: Any) -> tuple[CalibrationEstimator, RunLedger]:
     """:func:`replay_pass` with the run's evidence (:class:`RunLedger`) fed alongside."""
@@ -169,7 +173,7 @@ def _replay_pass(samples: Any, fixture: Any, grade: Any, config: EstimatorConfig
     return est, ledger
 
 
-def replay(open_samples: Callable[[], Any], fixture: Any, grade: Any,
+def replay(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade | None,
            config: EstimatorConfig, iterations: int = 1,
            progress: Callable[[int], None] | None = None) -> CalibrationEstimator:
     """``iterations`` passes over the data (``open_samples()`` gives a fresh iterator).
@@ -183,7 +187,7 @@ def replay(open_samples: Callable[[], Any], fixture: Any, grade: Any,
     return _passes(open_samples, fixture, grade, config, iterations, progress)[0]
 
 
-def replay_run(open_samples: Callable[[], Any], fixture: Any, grade: Any,
+def replay_run(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade | None,
                config: EstimatorConfig, iterations: int = 1,
                progress: Callable[[int], None] | None = None,
                selfcheck: SelfCheckConfig | None = None,
@@ -198,7 +202,7 @@ def replay_run(open_samples: Callable[[], Any], fixture: Any, grade: Any,
     return ReplayRun(est, ledger, ledger.verdict(selfcheck), why)
 
 
-def _passes(open_samples: Callable[[], Any], fixture: Any, grade: Any,
+def _passes(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade | None,
             config: EstimatorConfig, iterations: int,
             progress: Callable[[int], None] | None, max_passes: int = 0
             ) -> tuple[CalibrationEstimator, RunLedger, tuple[str, ...]]:

@@ -15,6 +15,7 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import parameters as registry
 from .. import sensor_model as sm
 from ..calibration import CalibrationResult
 from . import error_model as em
@@ -23,18 +24,8 @@ from .priors import WorkingPoint
 
 FloatArray = NDArray[np.float64]
 
-# CONTRACT 4 keys and the state groups that make them up
-CONTRACT_KEYS: dict[str, tuple[str, ...]] = {
-    'gyroscope.bias': ('gyro_bias',),
-    'gyroscope.scale_misalignment': ('gyro_scale', 'gyro_misalignment'),
-    'gyroscope.scale_asymmetry': ('gyro_asymmetry',),
-    'gyroscope.g_sensitivity': ('gyro_g_sensitivity',),
-    'accelerometer.bias': ('accel_bias',),
-    'accelerometer.scale_misalignment': ('accel_scale', 'accel_misalignment'),
-    'accelerometer.scale_asymmetry': ('accel_asymmetry',),
-    'accelerometer.quadratic': ('accel_quadratic',),
-    'accelerometer.size_effect': ('size_effect',),
-}
+# CONTRACT 4 keys and the state groups that make them up (the registry's)
+CONTRACT_KEYS: dict[str, tuple[str, ...]] = dict(registry.GROUPS_OF_KEY)
 
 
 @dataclass(frozen=True)
@@ -42,7 +33,7 @@ class Estimate:
     """Full estimate in SI: sensor parameters, auxiliary states and their covariance."""
 
     theta_gyro: FloatArray  # (21,) full gyro parameter vector (error_model order)
-    theta_accel: FloatArray  # (26,) full accel parameter vector
+    theta_accel: FloatArray  # (25,) full accel parameter vector
     lever_arm_imu_m: FloatArray  # (3,) reference point offset from the axes, IMU frame
     mounting_rotvec_rad: FloatArray  # (3,) mounting rotation estimate, IMU frame
     labels: tuple[str, ...]  # labels of the calibration states (no psi, dv)

@@ -21,7 +21,8 @@ eqs. 5-6 mix C_S^B and C_B^S).
 """
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,11 +32,14 @@ from ..rotation import rot_axis_angle
 from ..types import GAP_PERIODS, ImuBatch, JointBatch, sample_intervals_ns
 from .windows import joint_positions
 
+if TYPE_CHECKING:
+    from ..fixture import Fixture
+
 FloatArray = NDArray[np.float64]
 MODES = {'one': 1, 'two': 2, 'four': 4}
 
 
-def _setup(imu: ImuBatch, joints: JointBatch, fixture: Any, joint: str | None,
+def _setup(imu: ImuBatch, joints: JointBatch, fixture: Fixture, joint: str | None,
            ) -> tuple[int, FloatArray, FloatArray, FloatArray]:
     """Modulation joint index, its angle at the IMU stamps and at the interval starts, and
     its axis in the IMU frame."""
@@ -179,7 +183,7 @@ def _derotate(u: FloatArray, phi0: FloatArray, phi1: FloatArray, v_s: FloatArray
     return ax + (v_b - ax) / s[:, None]
 
 
-def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
+def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Fixture, *,
                           joint: str | None = None, causal: bool = False,
                           frame_id: str | None = None) -> ImuBatch:
     """Full-rate body-frame stream with the modulated biases removed (continuous mode).
@@ -211,7 +215,7 @@ def demodulate_continuous(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
     return ImuBatch(imu.stamps_ns.copy(), w_b, f_b, frame_id or f'{imu.frame_id}_body')
 
 
-def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str = 'one', *,
+def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Fixture, mode: str = 'one', *,
                       joint: str | None = None, frame_id: str | None = None) -> ImuBatch:
     """The paper's one-, two- or four-point scheme (eqs. 12-14): output at the control points.
 
@@ -255,12 +259,41 @@ def demodulate_points(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str
     return ImuBatch(t.copy(), w_b, f_b, frame_id or f'{imu.frame_id}_body')
 
 
-def demodulate(imu: ImuBatch, joints: JointBatch, fixture: Any, mode: str, **kw: Any,
-               ) -> ImuBatch:
-    """Dispatch on ``mode`` in ``one | two | four | continuous``."""
-    if mode == 'continuous':
-        return demodulate_continuous(imu, joints, fixture, **kw)
-    return demodulate_points(imu, joints, fixture, mode, **kw)
+@dataclass(frozen=True)
+class DemodulationOptions:
+    """Options of :func:`demodulate`; a misspelt one is a TypeError.
+
+    Attributes
+    ----------
+    mode : {'continuous', 'one', 'two', 'four'}
+        Full-rate stream (:func:`demodulate_continuous`) or the paper's control points
+        (:func:`demodulate_points`).
+    joint : str, optional
+        The modulation joint (default: the joint that turns most).
+    causal : bool
+        Continuous mode only: the bias over the preceding revolution (live use) instead of a
+        centred one (the point modes are causal by construction).
+    frame_id : str, optional
+        Frame of the output (default: the input's with ``_body``).
+    """
+
+    mode: str = 'continuous'
+    joint: str | None = None
+    causal: bool = False
+    frame_id: str | None = None
+
+
+def demodulate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+               options: DemodulationOptions | str) -> ImuBatch:
+    """Dispatch on the mode (``one | two | four | continuous``); ``options`` may be just the
+    mode, with the other options at their defaults."""
+    o = DemodulationOptions(options) if isinstance(options, str) else options
+    if o.mode == 'continuous':
+        return demodulate_continuous(imu, joints, fixture, joint=o.joint, causal=o.causal,
+                                     frame_id=o.frame_id)
+    if o.causal:
+        raise InputError(f'--causal applies to --mode continuous only, not {o.mode}')
+    return demodulate_points(imu, joints, fixture, o.mode, joint=o.joint, frame_id=o.frame_id)
 
 
 class StreamingDemodulator:

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.integrate
@@ -61,10 +61,17 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
+from .. import parameters as registry
 from ..errors import InputError
 from ..kozlov import kozlov_c, kozlov_difference_factor, size_effect_mean_acceleration_enu
 from ..types import ImuBatch, JointBatch, sample_intervals_ns
 from .windows import Window, joint_positions, stationary_windows
+
+if TYPE_CHECKING:
+    from ..calibration import CalibrationResult
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
+    from ..sensor_model import SensorErrors
 
 FloatArray = NDArray[np.float64]
 
@@ -163,7 +170,7 @@ def _motion_interval(t_s: FloatArray, qk: FloatArray, rate_tol_rad_s: float) -> 
     return int(moving[0]), int(moving[-1]) + 1
 
 
-def find_cycles(imu: ImuBatch, joints: JointBatch, fixture: Any, windows: list[Window],
+def find_cycles(imu: ImuBatch, joints: JointBatch, fixture: Fixture, windows: list[Window],
                 vertical_tol_rad: float = 0.1, rate_tol_rad_s: float = 2e-3,
                 max_rms_fraction: float = 0.01) -> list[Cycle]:
     """Harmonic single-joint oscillations about a vertical axis between consecutive windows.
@@ -259,7 +266,7 @@ def mean_acceleration_sigma(vrw_m_s2_rt_hz: float, arw_rad_s_rt_hz: float, g_m_s
 
 
 #: the six size-effect coordinates (r_xy, r_xz, r_yx, r_yz, r_zx, r_zy), CONTRACT 3 order
-_OFF = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
+_OFF = registry.parameter('accelerometer.size_effect').entries  # r_i[j], registry order
 _BASIS = tuple(np.where(np.arange(9).reshape(3, 3) == 3 * n + m, 1.0, 0.0) for n, m in _OFF)
 
 
@@ -279,9 +286,24 @@ def _levelled(R_enu_imu: FloatArray, f_mean_imu: FloatArray) -> FloatArray:
     return Rotation.from_rotvec(axis / np.linalg.norm(axis) * ang).as_matrix() @ R_enu_imu
 
 
-def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None, *,
-             initial: Any = None, min_window_s: float = 4.0,
-             **_: Any) -> tuple[Any, Any, list[str], dict[str, Any]]:
+@dataclass(frozen=True)
+class OscillationOptions:
+    """Options of Kozlov & Kapralov's method (:func:`estimate`); a misspelt one is a
+    TypeError.
+
+    Attributes
+    ----------
+    min_window_s : float
+        Shortest stationary window.
+    """
+
+    min_window_s: float = 4.0
+
+
+def estimate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+             grade: ImuGrade | None = None, options: OscillationOptions = OscillationOptions(),
+             *, initial: CalibrationResult | None = None,
+             ) -> tuple[SensorErrors, SensorErrors, list[str], dict[str, Any]]:
     """Size effect from harmonic heading oscillations (Kozlov & Kapralov).
 
     Parameters
@@ -292,10 +314,10 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         Nominal fixture (kinematics, site).
     grade : ImuGrade, optional
         Only for the assumed sigmas of the parameters written as fixed.
+    options : OscillationOptions
+        The shortest stationary window.
     initial : CalibrationResult, optional
         Compensation applied before navigating (its size effect is ignored).
-    min_window_s : float
-        Shortest stationary window.
 
     Returns
     -------
@@ -312,9 +334,9 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     """
     from ..sensor_model import SensorErrors, compensate
     from ..strapdown import Strapdown
-    from .srt import FIELD_KEYS, _fields, _grade_sigmas, noise_densities
+    from .srt import FIELD_KEYS, _fields, noise_densities
 
-    windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s)
+    windows = stationary_windows(imu, joints, fixture, min_duration_s=options.min_window_s)
     cycles = find_cycles(imu, joints, fixture, windows)
     if not cycles:
         raise InputError('no harmonic oscillation about a vertical axis between stationary '
@@ -417,7 +439,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     for val, sd, (n, m) in zip(x, np.sqrt(np.diag(cov)), [p for p, e in zip(_OFF, est_cols)
                                                           if e]):
         r[n, m], r_sig[n, m] = val, sd
-    assumed = _grade_sigmas(grade)
+    assumed = registry.grade_sigmas(grade)
     sig = {k: v.copy() for k, v in assumed.items()} if initial is None else _fields(
         initial.sigma)
     errs = dict(base)
@@ -436,10 +458,13 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     return SensorErrors(**errs), SensorErrors(**sig), fixed, extra
 
 
-def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
-              **opts: Any) -> Any:
-    """Kozlov & Kapralov's method as a CalibrationResult (CONTRACT 4)."""
+def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+              grade: ImuGrade | None = None, options: OscillationOptions = OscillationOptions(),
+              *, initial: CalibrationResult | None = None) -> CalibrationResult:
+    """Kozlov & Kapralov's method as a CalibrationResult (CONTRACT 4); arguments as
+    :func:`estimate`."""
     from ..calibration import CalibrationResult
-    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, **opts)
+    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, options,
+                                           initial=initial)
     return CalibrationResult(errors=errors, sigma=sigma, frame_id=imu.frame_id or 'imu_link',
                              fixed=tuple(fixed), extra=extra)

@@ -32,37 +32,40 @@ earth rate of the window's attitude), not from the rotation sequences.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from .. import parameters as registry
 from ..earth import EARTH_RATE_RAD_S
 from ..errors import InputError
 from ..sensor_model import KEY_OF_FIELD
 from ..types import ImuBatch, JointBatch, sample_intervals_ns
 from .windows import Window, stationary_windows
 
+if TYPE_CHECKING:
+    from ..calibration import CalibrationResult
+    from ..fixture import Fixture
+    from ..imu_grade import ImuGrade
+    from ..sensor_model import SensorErrors
+
 FloatArray = NDArray[np.float64]
 AXES = 'xyz'
 
-#: Estimated parameters: (name, SensorErrors field, index). Kg entries are symmetric pairs.
-PARAMS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
-    *((f'Kg_{a}{a}', 'gyro_scale_misalignment', (i, i)) for i, a in enumerate(AXES)),
-    ('Kg_xy', 'gyro_scale_misalignment', (0, 1)), ('Kg_xz', 'gyro_scale_misalignment', (0, 2)),
-    ('Kg_yz', 'gyro_scale_misalignment', (1, 2)),
-    *((f'ag_{a}', 'gyro_scale_asymmetry', (i,)) for i, a in enumerate(AXES)),
-    *((f'Ka_{a}{b}', 'accel_scale_misalignment', (i, j))
-      for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
-    *((f'aa_{a}', 'accel_scale_asymmetry', (i,)) for i, a in enumerate(AXES)),
-    *((f'ba_{a}', 'accel_bias_m_s2', (i,)) for i, a in enumerate(AXES)),
-)
+#: Estimated parameters: (name, SensorErrors field, index), from the parameter registry: Kg
+#: (its six symmetric pairs), ag, Ka, aa, ba, each in 45-vector order.
+PARAMS: tuple[tuple[str, str, tuple[int, ...]], ...] = registry.entries_of(
+    'gyroscope.scale_misalignment', 'gyroscope.scale_asymmetry',
+    'accelerometer.scale_misalignment', 'accelerometer.scale_asymmetry', 'accelerometer.bias')
 PARAM_NAMES = tuple(p[0] for p in PARAMS)
-N_GYRO_PARAMS = 9  # the first 9 act on the gyros (they need the DCM re-integrated)
+#: the first 9 act on the gyros (they need the DCM re-integrated)
+N_GYRO_PARAMS = sum(registry.PARAMETER_OF_FIELD[fld].section == 'gyroscope'
+                    for _, fld, _ in PARAMS)
 #: finite-difference step per parameter: dimensionless 1e-6, accel bias 1e-5 m/s^2
-_EPS = np.array([1e-6] * 21 + [1e-5] * 3)
+_EPS = np.array([1e-5 if fld == 'accel_bias_m_s2' else 1e-6 for _, fld, _ in PARAMS])
 
 #: Savage's Table 1 (restated in METHODS.md): initial down axis, axis along the outer
 #: fixture axis, and the sequential rotations about IMU axes (axis, degrees).
@@ -105,13 +108,11 @@ def add_errors(x: FloatArray, omega_rad_s: FloatArray, f_m_s2: FloatArray,
 
 def _errors_from_vector(x: FloatArray) -> dict[str, FloatArray]:
     """The SensorErrors fields touched by ``x`` (the others are not included)."""
-    out: dict[str, FloatArray] = {
-        'gyro_scale_misalignment': np.zeros((3, 3)), 'gyro_scale_asymmetry': np.zeros(3),
-        'accel_scale_misalignment': np.zeros((3, 3)), 'accel_scale_asymmetry': np.zeros(3),
-        'accel_bias_m_s2': np.zeros(3)}
+    out: dict[str, FloatArray] = {fld: np.zeros(registry.PARAMETER_OF_FIELD[fld].shape)
+                                  for _, fld, _ in PARAMS}
     for v, (_, fld, idx) in zip(x, PARAMS):
         out[fld][idx] = v
-        if fld == 'gyro_scale_misalignment':
+        if registry.PARAMETER_OF_FIELD[fld].symmetric:
             out[fld][idx[::-1]] = v
     return out
 
@@ -434,13 +435,11 @@ def solve(J: FloatArray, y: FloatArray, sigma: FloatArray, rtol: float = 1e-2,
 #: Parameters the SRT never estimates (CONTRACT 3 terms outside its linear model): (label,
 #: SensorErrors field, index, finite-difference step). G's step moves the rate by ~1e-6 rad/s
 #: (as Kg's); qa and r enter the specific force linearly, so their steps are exact.
-CONSIDER: tuple[tuple[str, str, tuple[int, ...], float], ...] = (
-    *((f'G_{a}{b}', 'gyro_g_sensitivity_rad_s_per_m_s2', (i, j), 1e-7)
-      for i, a in enumerate(AXES) for j, b in enumerate(AXES)),
-    *((f'qa_{a}', 'accel_quadratic_per_m_s2', (i,), 1e-6) for i, a in enumerate(AXES)),
-    *((f'r_{a}{b}', 'size_effect_m', (i, j), 1e-3)
-      for i, a in enumerate(AXES) for j, b in enumerate(AXES) if i != j),
-)
+_CONSIDER_STEP = {'gyro_g_sensitivity_rad_s_per_m_s2': 1e-7, 'accel_quadratic_per_m_s2': 1e-6,
+                  'size_effect_m': 1e-3}
+CONSIDER: tuple[tuple[str, str, tuple[int, ...], float], ...] = tuple(
+    (name, fld, idx, _CONSIDER_STEP[fld]) for name, fld, idx in registry.entries_of(
+        'gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect'))
 
 
 def _window_mean(x: FloatArray, windows: Sequence[Window]) -> FloatArray:
@@ -613,29 +612,10 @@ def gyro_bias_from_windows(stamps_ns: NDArray[np.int64], gyro_rad_s: FloatArray,
     return bias, np.maximum(sig_noise, sig_scatter)
 
 
-def _grade_sigmas(grade: Any) -> dict[str, FloatArray]:
-    """Assumed one-sigma of every SensorErrors field from an ImuGrade (zeros without one)."""
-    s = getattr(grade, 'sigma', None)
-
-    def get(name: str) -> float:
-        return float(getattr(s, name, 0.0)) if s is not None else 0.0
-
-    def mat(scale: str, mis: str) -> FloatArray:
-        return np.where(np.eye(3, dtype=bool), get(scale), get(mis))
-
-    r = np.full((3, 3), get('size_effect_m'))
-    np.fill_diagonal(r, 0.0)
-    return {
-        'gyro_bias_rad_s': np.full(3, get('gyro_bias_rad_s')),
-        'gyro_scale_misalignment': mat('gyro_scale', 'gyro_misalignment_rad'),
-        'gyro_scale_asymmetry': np.full(3, get('gyro_asymmetry')),
-        'gyro_g_sensitivity_rad_s_per_m_s2': np.full((3, 3), get('gyro_g_sensitivity')),
-        'accel_bias_m_s2': np.full(3, get('accel_bias_m_s2')),
-        'accel_scale_misalignment': mat('accel_scale', 'accel_misalignment_rad'),
-        'accel_scale_asymmetry': np.full(3, get('accel_asymmetry')),
-        'accel_quadratic_per_m_s2': np.full(3, get('accel_quadratic')),
-        'size_effect_m': r,
-    }
+def _grade_sigmas(grade: ImuGrade | None) -> dict[str, FloatArray]:
+    """Assumed one-sigma of every SensorErrors field from an ImuGrade (zeros without one):
+    :func:`~imu_calib_ros.core.parameters.grade_sigmas`."""
+    return registry.grade_sigmas(grade)
 
 
 #: SensorErrors field -> CONTRACT 4 key
@@ -646,11 +626,34 @@ def _fields(errors: Any) -> dict[str, FloatArray]:
     return {k: np.array(getattr(errors, k), float) for k in FIELD_KEYS}
 
 
-def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
-              **opts: Any) -> Any:
-    """Savage's SRT as a CalibrationResult (CONTRACT 4); options as :func:`estimate`."""
+@dataclass(frozen=True)
+class SrtOptions:
+    """Options of Savage's SRT (:func:`estimate`); a misspelt one is a TypeError.
+
+    Attributes
+    ----------
+    iterations : int
+        Re-plays with the updated compensation (Savage sect. 8); 2-3 suffice.
+    min_window_s, window_margin_s : float
+        Shortest stationary window and the margin cut from its ends
+        (:func:`~.windows.stationary_windows`).
+    rtol : float
+        Relative tolerance of the rank detection (:func:`solve`).
+    """
+
+    iterations: int = 3
+    min_window_s: float = 4.0
+    window_margin_s: float = 0.5
+    rtol: float = 1e-2
+
+
+def calibrate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+              grade: ImuGrade | None = None, options: SrtOptions = SrtOptions(), *,
+              initial: CalibrationResult | None = None) -> CalibrationResult:
+    """Savage's SRT as a CalibrationResult (CONTRACT 4); arguments as :func:`estimate`."""
     from ..calibration import CalibrationResult
-    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, **opts)
+    errors, sigma, fixed, extra = estimate(imu, joints, fixture, grade, options,
+                                           initial=initial)
     return CalibrationResult(errors=errors, sigma=sigma, frame_id=imu.frame_id or 'imu_link',
                              fixed=tuple(fixed), extra=extra)
 
@@ -670,10 +673,10 @@ def _consider_part(sol: LsqResult, J: FloatArray, J_f: FloatArray, prior_sd: Flo
                                sig_all)[0]
 
 
-def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None, *,
-             iterations: int = 3, initial: Any = None, min_window_s: float = 4.0,
-             window_margin_s: float = 0.5, rtol: float = 1e-2, **_ignored: Any,
-             ) -> tuple[Any, Any, list[str], dict[str, Any]]:
+def estimate(imu: ImuBatch, joints: JointBatch, fixture: Fixture,
+             grade: ImuGrade | None = None, options: SrtOptions = SrtOptions(), *,
+             initial: CalibrationResult | None = None,
+             ) -> tuple[SensorErrors, SensorErrors, list[str], dict[str, Any]]:
     """Savage's SRT on a recording: windows, eqs. (1)-(2), linear model, least squares.
 
     Parameters
@@ -686,8 +689,8 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         Gives the assumed sigmas of the parameters the SRT does not estimate; the noise
         used for the sigmas is always measured from the stationary windows; its accelerometer
         bias instability and correlation time give the rows' drift covariance.
-    iterations : int
-        Re-plays with the updated compensation (Savage sect. 8); 2-3 suffice.
+    options : SrtOptions
+        Iterations, window lengths, rank tolerance.
     initial : CalibrationResult, optional
         Starting compensation (e.g. a previous SRT); its non-estimated values are kept.
 
@@ -703,8 +706,9 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
     """
     from ..sensor_model import SensorErrors, compensate
 
+    iterations, min_window_s, rtol = options.iterations, options.min_window_s, options.rtol
     windows = stationary_windows(imu, joints, fixture, min_duration_s=min_window_s,
-                                 margin_s=window_margin_s)
+                                 margin_s=options.window_margin_s)
     if len(windows) < 2:
         raise InputError(f'SRT needs stationary windows of >= {min_window_s} s before and '
                          f'after each rotation; found {len(windows)}')
@@ -788,7 +792,7 @@ def estimate(imu: ImuBatch, joints: JointBatch, fixture: Any, grade: Any = None,
         mask = _errors_from_vector(sol.estimated.astype(float))[fld] > 0
         sig[fld][mask] = val[mask]
     sig['gyro_bias_rad_s'] = np.sqrt(sig_bg ** 2 + (B_f ** 2) @ sig_consider ** 2)
-    fixed = ['gyroscope.g_sensitivity', 'accelerometer.quadratic', 'accelerometer.size_effect']
+    fixed = [registry.PARAMETER_OF_FIELD[fld].key for fld in _CONSIDER_STEP]  # G, qa, r
     not_est = [n for n, e in zip(PARAM_NAMES, sol.estimated) if not e]
     for fld, key in FIELD_KEYS.items():
         if any(PARAMS[i][1] == fld for i, n in enumerate(PARAM_NAMES) if n in not_est):

@@ -11,7 +11,7 @@ Runs shorter than ``min_duration_s`` after trimming ``margin_s`` at both ends ar
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +19,9 @@ from scipy.ndimage import binary_erosion, uniform_filter1d
 
 from ..errors import InputError
 from ..types import ImuBatch, JointBatch
+
+if TYPE_CHECKING:
+    from ..fixture import Fixture
 
 FloatArray = NDArray[np.float64]
 
@@ -83,7 +86,7 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
-def stationary_windows(imu: ImuBatch, joints: JointBatch, fixture: Any, *,
+def stationary_windows(imu: ImuBatch, joints: JointBatch, fixture: Fixture, *,
                        joint_rate_tol_rad_s: float = 2e-3, gyro_tol_rad_s: float = 5e-3,
                        imu_smooth_s: float = 0.5, min_duration_s: float = 4.0,
                        margin_s: float = 0.5) -> list[Window]:
