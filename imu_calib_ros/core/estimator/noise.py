@@ -81,7 +81,7 @@ def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float) -> tuple[
     return out[0], out[1]
 
 
-def grade_bias_walk(grade: Any) -> tuple[float, float]:
+def grade_bias_walk(grade: ImuGrade) -> tuple[float, float]:
     """Spectral densities ``(q_g, q_a)`` of a grade's bias walk [(rad/s)^2/s, (m/s^2)^2/s]:
     its Gauss-Markov instability as a random walk ``2 sigma^2 / tau`` plus its random walk."""
     return (2.0 * grade.gyro_bias_instability_rad_s ** 2 / grade.gyro_bias_correlation_s
@@ -90,7 +90,7 @@ def grade_bias_walk(grade: Any) -> tuple[float, float]:
             + grade.accel_bias_random_walk_m_s3_rt_hz ** 2)
 
 
-def gyro_bias_floor_rad_s(grade: Any) -> float:
+def gyro_bias_floor_rad_s(grade: ImuGrade) -> float:
     """Least sigma of a tracked gyro bias [rad/s] that a unit's own noise allows (issue 3's
     note, restated by issue 11; the MEMS gyro-bias target is this floor, and <= 2 deg/h where
     it is lower): a random walk of PSD ``q`` (:func:`grade_bias_walk`) seen through white rate
