@@ -14,6 +14,7 @@ rotations turn gravity through +-1 g on every axis and turn each gyro axis by 2 
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import random
 import re
@@ -217,6 +218,64 @@ def test_fixture_parameters_refusals_and_site_override(ros: Node, tmp_path: Path
                          r'imu_link, 6 joints .*site latitude -33.5 deg', log), log
     finally:
         ros.destroy_publisher(desc)
+
+
+def test_simulator_node_simulates_the_arm_with_its_errors(ros: Node, tmp_path: Path) -> None:
+    """turntable_sim with ``joint_offset_sigma_rad``/``link_sigma_m`` (the options of
+    ``imu-calib simulate``): one line naming the drawn zero offsets; the IMU published over DDS
+    is, sample for sample, the core simulation of that perturbed arm (the CLI's), not the
+    nominal arm's; the truth file records the errors."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu
+
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.imu_grade import load_grade
+    from imu_calib_ros.core.plans import build_profile, load_plan
+    from imu_calib_ros.core.simulator import SimConfig, simulate
+    from imu_calib_ros.core.urdf_fixture import UrdfOptions
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text('name: p\nsteps:\n  - dwell: {duration_s: 1}\n  - move: {joint: '
+                    'elbow_joint, by_deg: 45, duration_s: 2}\n')
+    truth = tmp_path / 'truth.yaml'
+    got: list[Any] = []
+    sub = ros.create_subscription(Imu, 'imu/data_raw', got.append,
+                                  QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+    sim = start_node('turntable_sim', {'fixture': str(ARM), **CHAIN, 'plan': str(plan),
+                                       'imu_grade': 'mems_mti1', 'imu_rate_hz': 50.0,
+                                       'seed': 3, 'joint_offset_sigma_rad': 1e-3,
+                                       'link_sigma_m': 2e-3, 'speed': 4.0,
+                                       'truth_file': str(truth), 'wait_for_subscribers': 1,
+                                       'exit_when_done': True}, tmp_path)
+    try:
+        spin_until(ros, lambda: sim.poll() is not None, 60.0)
+        spin_until(ros, lambda: False, 0.5)
+    finally:
+        log = stop_node(sim)
+        ros.destroy_subscription(sub)
+    assert sim.returncode == 0, log
+    m = re.search(r'simulating the chain with errors \(joint_offset_sigma_rad 0.001, '
+                  r'link_sigma_m 0.002\): joint zero offsets \[mrad\] shoulder_pan_joint '
+                  r'([-+0-9.]+), .*wrist_3_joint ([-+0-9.]+); largest joint-origin error', log)
+    assert m, log
+    fx = load_fixture(str(ARM), UrdfOptions(**CHAIN))
+    profile = build_profile(load_plan(str(plan)), fx)
+    cfg = SimConfig(imu_rate_hz=50.0, seed=3, start_stamp_ns=1000 * 10**9,
+                    joint_offset_sigma_rad=1e-3, link_sigma_m=2e-3)
+    ref = simulate(fx, profile, load_grade('mems_mti1'), cfg)
+    nominal = simulate(fx, profile, load_grade('mems_mti1'),
+                       dataclasses.replace(cfg, joint_offset_sigma_rad=0.0, link_sigma_m=0.0))
+    offs = ref.truth.extra['chain_errors']['joint_zero_offsets_rad']
+    assert float(m.group(1)) == pytest.approx(offs['shoulder_pan_joint'] * 1e3, abs=1e-3)
+    assert float(m.group(2)) == pytest.approx(offs['wrist_3_joint'] * 1e3, abs=1e-3)
+    stamps = [msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec for msg in got]
+    acc = np.array([[msg.linear_acceleration.x, msg.linear_acceleration.y,
+                     msg.linear_acceleration.z] for msg in got])
+    n = len(ref.imu)
+    assert stamps[:n] == ref.imu.stamps_ns.tolist(), (len(got), n)
+    assert np.array_equal(acc[:n], ref.imu.accel_m_s2)
+    assert np.abs(acc[:n] - nominal.imu.accel_m_s2).max() > 1e-3
+    saved = CalibrationResult.load(truth)
+    assert saved.extra['chain_errors'] == ref.truth.extra['chain_errors']
 
 
 def _run_driver(tmp_path: Path, params: dict[str, Any]) -> tuple[int, str]:
