@@ -278,6 +278,113 @@ def test_simulator_node_simulates_the_arm_with_its_errors(ros: Node, tmp_path: P
     assert saved.extra['chain_errors'] == ref.truth.extra['chain_errors']
 
 
+def test_fixture_changes_names_what_differs() -> None:
+    """The text the calibration node logs and reports for a changed robot_description:
+    nothing for the same chain; the site, the joints, the IMU's place otherwise."""
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.urdf_fixture import UrdfOptions
+    from imu_calib_ros.nodes.fixture_source import fixture_changes
+    arm = load_fixture(str(ARM), UrdfOptions(**CHAIN))
+    assert fixture_changes(arm, load_fixture(str(ARM), UrdfOptions(**CHAIN))) == []
+    south = load_fixture(str(ARM), UrdfOptions(**CHAIN, latitude_deg=-33.5))
+    assert fixture_changes(arm, south) == ['site latitude 55.7 -> -33.5 deg']
+    tool = load_fixture(str(ARM), UrdfOptions('base_link', 'tool0'))
+    assert fixture_changes(arm, tool) == ['IMU position [0, 112.3, 0] -> [0, 82.3, 0] mm']
+    short = load_fixture(str(ARM), UrdfOptions('base_link', 'wrist_2_link'))
+    assert fixture_changes(arm, short)[0] == (
+        'joints [shoulder_pan_joint, shoulder_lift_joint, elbow_joint, wrist_1_joint, '
+        'wrist_2_joint, wrist_3_joint] -> [shoulder_pan_joint, shoulder_lift_joint, '
+        'elbow_joint, wrist_1_joint, wrist_2_joint]')
+
+
+def test_calibration_node_on_a_changed_robot_description(ros: Node, tmp_path: Path) -> None:
+    """robot_state_publisher republishes the URDF when it changes. The calibration node
+    started with ``fixture:=robot_description``: a different chain before any IMU data is
+    adopted (one line naming the change); the same text again is ignored; a different text
+    with the same chain (a comment) changes nothing; a different chain while calibrating is
+    NOT applied: one WARN line naming what changed, ``/diagnostics`` WARN with it, and
+    ``~/reset`` restarts the calibration on the new chain."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    from imu_calib_ros.nodes.common import latched_qos
+    urdf = ARM.read_text()
+    mount = '<origin xyz="0 0 0.03" rpy="0 0 0"/>'
+    assert urdf.count(mount) == 1
+    moved = urdf.replace(mount, '<origin xyz="0 0 0.05" rpy="0 0 0"/>')  # IMU 2 cm further
+    elbow = re.search(r'<joint name="elbow_joint".*?</joint>', moved, re.S).group(0)
+    limited = moved.replace(elbow, re.sub(r'upper="[^"]*"', 'upper="2.0"', elbow))
+    assert limited != moved
+    desc = ros.create_publisher(String, 'robot_description', latched_qos())
+    desc.publish(String(data=urdf))
+    diags: list[Any] = []
+    sub = ros.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    reset = ros.create_client(Trigger, '/calibration/reset')
+    cal = start_node('calibration', {'fixture': 'robot_description', **CHAIN,
+                                     'diagnostics_rate_hz': 5.0}, tmp_path)
+    sim = None
+
+    def status() -> Any:
+        st = [x for d in diags for x in d.status if x.name.endswith('IMU calibration')]
+        return st[-1] if st else None
+
+    def value(key: str) -> str:
+        st = status()
+        return {kv.key: kv.value for kv in st.values}.get(key, '') if st else ''
+
+    def wait(cond: Any, what: str, timeout_s: float = 30.0) -> None:
+        diags.clear()
+        assert spin_until(ros, cond, timeout_s), f'{what}: {status()}\n{stop_node(cal)}'
+
+    try:
+        assert reset.wait_for_service(timeout_sec=60.0), stop_node(cal)
+        wait(lambda: status() is not None, 'diagnostics')
+        desc.publish(String(data=moved))  # before any IMU data: adopted
+        wait(lambda: 'update 1 adopted before any IMU data' in value('robot_description'),
+             'adopted')
+        assert 'IMU position [0, 112.3, 0] -> [0, 132.3, 0] mm' in value('robot_description')
+        desc.publish(String(data=moved))  # the same text: ignored (no update 2)
+        desc.publish(String(data=moved + '<!-- a comment -->\n'))  # the same chain
+        wait(lambda: value('robot_description').startswith('update 2: the same chain'),
+             'same chain')
+        sim = start_node('turntable_sim', {'fixture': str(ARM), **CHAIN, 'imu_rate_hz': 100.0,
+                                           'imu_grade': 'mems_mti1', 'publish_clock': False},
+                         tmp_path)
+        wait(lambda: int(value('imu') or 0) > 100, 'IMU data')
+        desc.publish(String(data=limited))  # while calibrating: kept, WARN
+        wait(lambda: status() is not None and status().level == DiagnosticStatus.WARN
+             and 'robot_description changed while calibrating' in status().message, 'WARN')
+        msg = status().message
+        assert "kept the run's chain" in msg, msg
+        assert 'elbow_joint upper limit 180 -> 114.592 deg' in msg, msg
+        assert '~/reset restarts the calibration on the new chain' in msg, msg
+        assert value('robot_description').startswith('update 3 NOT applied'), value(
+            'robot_description')
+        fut = reset.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=60.0)
+        res = fut.result()
+        assert res is not None and res.success, res
+        assert 'adopted the chain from the latest robot_description: fixture from URDF ' \
+            '<robot_description>' in res.message, res.message
+        wait(lambda: value('robot_description') == 'update 3 adopted at ~/reset', 'reset')
+        assert 'robot_description' not in status().message, status().message
+    finally:
+        log = (stop_node(sim, wait_s=10.0) if sim is not None else '') + stop_node(cal,
+                                                                                  wait_s=10.0)
+        ros.destroy_client(reset)
+        ros.destroy_subscription(sub)
+        ros.destroy_publisher(desc)
+    assert 'Traceback' not in log, log[-3000:]
+    lines = log.splitlines()
+    adopted = [ln for ln in lines if 'robot_description changed before any IMU data: '
+               'adopted the new chain' in ln]
+    assert len(adopted) == 1 and 'IMU link imu_link at [0, 0.1323, 0] m' in adopted[0], log
+    warned = [ln for ln in lines if 'robot_description changed while calibrating' in ln]
+    assert len(warned) == 1 and 'WARN' in warned[0], log
+    assert sum("the chain is the same as the run's" in ln for ln in lines) == 1, log
+
+
 def _run_driver(tmp_path: Path, params: dict[str, Any]) -> tuple[int, str]:
     cmd = [sys.executable, '-m', 'imu_calib_ros.nodes.turntable_driver', '--ros-args']
     for k, v in params.items():
