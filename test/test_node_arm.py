@@ -303,7 +303,8 @@ def test_calibration_node_on_a_changed_robot_description(ros: Node, tmp_path: Pa
     adopted (one line naming the change); the same text again is ignored; a different text
     with the same chain (a comment) changes nothing; a different chain while calibrating is
     NOT applied: one WARN line naming what changed, ``/diagnostics`` WARN with it, and
-    ``~/reset`` restarts the calibration on the new chain."""
+    ``~/reset`` restarts the calibration on the new chain; a URDF without the chain is
+    ignored, WARN saying why."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
@@ -369,6 +370,11 @@ def test_calibration_node_on_a_changed_robot_description(ros: Node, tmp_path: Pa
             '<robot_description>' in res.message, res.message
         wait(lambda: value('robot_description') == 'update 3 adopted at ~/reset', 'reset')
         assert 'robot_description' not in status().message, status().message
+        desc.publish(String(data='<robot name="broken"><link name="base_link"/></robot>'))
+        wait(lambda: status() is not None and status().message.startswith(
+            'robot_description update 4 ignored (cannot build the chain: '), 'broken URDF')
+        assert status().level == DiagnosticStatus.WARN, status()
+        assert 'imu_calib_site: a URDF fixture needs' in status().message, status().message
     finally:
         log = (stop_node(sim, wait_s=10.0) if sim is not None else '') + stop_node(cal,
                                                                                   wait_s=10.0)
