@@ -198,6 +198,9 @@ def test_full_rate_matrix(tmp_path: Path, capsys: pytest.CaptureFixture[str], fi
     (['--seed', '-1'], 'argument --seed'),
     (['--imu-topic', '/joint_states'], 'must differ'),
     (['--frame-id', ''], 'argument --frame-id'),
+    (['--joint-offset-sigma-rad=-1e-3'], 'argument --joint-offset-sigma-rad: must be a '
+     'finite number >= 0'),
+    (['--link-sigma-m', 'inf'], 'argument --link-sigma-m: must be a finite number >= 0'),
 ])
 def test_bad_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str],
                        match: str) -> None:
@@ -291,3 +294,46 @@ def test_truth_option_and_topics(tmp_path: Path, capsys: pytest.CaptureFixture[s
     imu, _ = bag.read_bag(out, '/imu/raw', '/table/joints')
     assert imu.frame_id == 'my_imu'
     assert CalibrationResult.load(truth).frame_id == 'my_imu'
+
+
+def test_arm_errors_into_the_data_and_the_truth(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """``--joint-offset-sigma-rad``/``--link-sigma-m`` on a URDF arm: the bag's IMU comes from
+    the perturbed chain (differs from the nominal arm's by more than the noise could), the
+    joint states are the encoder readings (equal), and the truth file records the drawn
+    errors (``chain_errors``: the simulator's, SimConfig's draw) and the estimator's
+    last-link mounting and lever-arm truth."""
+    plan = tmp_path / 'p.yaml'
+    plan.write_text('name: p\nsteps:\n  - dwell: {duration_s: 1}\n  - move: {joint: '
+                    'wrist_2_joint, by_deg: 90, duration_s: 2}\n')
+    args = ['--fixture', 'arm6.urdf', '--base-link', 'base_link', '--imu-link', 'imu_link',
+            '--plan', str(plan), '--imu', 'mems_mti1', '--rate', '50', '--seed', '4',
+            '--no-noise']
+    rc, _, err = run_cli(args + ['--output', str(tmp_path / 'nom'), '--truth',
+                                 str(tmp_path / 'nom.yaml')], capsys)
+    assert rc == 0, err
+    rc, _, err = run_cli(args + ['--output', str(tmp_path / 'arm'), '--truth',
+                                 str(tmp_path / 'arm.yaml'), '--joint-offset-sigma-rad',
+                                 '1e-3', '--link-sigma-m', '2e-3'], capsys)
+    assert rc == 0, err
+    imu_n, joints_n = bag.read_bag(tmp_path / 'nom', '/imu/data_raw', '/joint_states')
+    imu_a, joints_a = bag.read_bag(tmp_path / 'arm', '/imu/data_raw', '/joint_states')
+    assert np.array_equal(joints_n.positions_rad, joints_a.positions_rad)
+    assert np.abs(imu_a.accel_m_s2 - imu_n.accel_m_s2).max() > 1e-3
+    nom = CalibrationResult.load(tmp_path / 'nom.yaml')
+    arm = CalibrationResult.load(tmp_path / 'arm.yaml')
+    assert 'chain_errors' not in nom.extra
+    assert np.array_equal(nom.errors.as_vector(), arm.errors.as_vector())
+    ce = arm.extra['chain_errors']
+    assert ce['joint_offset_sigma_rad'] == 1e-3 and ce['link_sigma_m'] == 2e-3
+    assert arm.extra['provenance']['joint_offset_sigma_rad'] == 1e-3
+    from imu_calib_ros.core.urdf_fixture import UrdfOptions
+    fx = load_fixture('arm6.urdf', UrdfOptions('base_link', 'imu_link'))
+    res = simulator.simulate(fx, build_profile(load_plan(str(plan)), fx),
+                             load_grade('mems_mti1'),
+                             simulator.SimConfig(imu_rate_hz=50.0, seed=4, noise=False,
+                                                 joint_offset_sigma_rad=1e-3,
+                                                 link_sigma_m=2e-3))
+    assert ce == res.truth.extra['chain_errors']
+    assert list(ce['joint_zero_offsets_rad']) == list(fx.joint_names)
+    assert np.array_equal(imu_a.accel_m_s2, res.imu.accel_m_s2)

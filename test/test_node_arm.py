@@ -14,6 +14,7 @@ rotations turn gravity through +-1 g on every axis and turn each gyro axis by 2 
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import random
 import re
@@ -217,6 +218,177 @@ def test_fixture_parameters_refusals_and_site_override(ros: Node, tmp_path: Path
                          r'imu_link, 6 joints .*site latitude -33.5 deg', log), log
     finally:
         ros.destroy_publisher(desc)
+
+
+def test_simulator_node_simulates_the_arm_with_its_errors(ros: Node, tmp_path: Path) -> None:
+    """turntable_sim with ``joint_offset_sigma_rad``/``link_sigma_m`` (the options of
+    ``imu-calib simulate``): one line naming the drawn zero offsets; the IMU published over DDS
+    is, sample for sample, the core simulation of that perturbed arm (the CLI's), not the
+    nominal arm's; the truth file records the errors."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu
+
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.imu_grade import load_grade
+    from imu_calib_ros.core.plans import build_profile, load_plan
+    from imu_calib_ros.core.simulator import SimConfig, simulate
+    from imu_calib_ros.core.urdf_fixture import UrdfOptions
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text('name: p\nsteps:\n  - dwell: {duration_s: 1}\n  - move: {joint: '
+                    'elbow_joint, by_deg: 45, duration_s: 2}\n')
+    truth = tmp_path / 'truth.yaml'
+    got: list[Any] = []
+    sub = ros.create_subscription(Imu, 'imu/data_raw', got.append,
+                                  QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+    sim = start_node('turntable_sim', {'fixture': str(ARM), **CHAIN, 'plan': str(plan),
+                                       'imu_grade': 'mems_mti1', 'imu_rate_hz': 50.0,
+                                       'seed': 3, 'joint_offset_sigma_rad': 1e-3,
+                                       'link_sigma_m': 2e-3, 'speed': 4.0,
+                                       'truth_file': str(truth), 'wait_for_subscribers': 1,
+                                       'exit_when_done': True}, tmp_path)
+    try:
+        spin_until(ros, lambda: sim.poll() is not None, 60.0)
+        spin_until(ros, lambda: False, 0.5)
+    finally:
+        log = stop_node(sim)
+        ros.destroy_subscription(sub)
+    assert sim.returncode == 0, log
+    m = re.search(r'simulating the chain with errors \(joint_offset_sigma_rad 0.001, '
+                  r'link_sigma_m 0.002\): joint zero offsets \[mrad\] shoulder_pan_joint '
+                  r'([-+0-9.]+), .*wrist_3_joint ([-+0-9.]+); largest joint-origin error', log)
+    assert m, log
+    fx = load_fixture(str(ARM), UrdfOptions(**CHAIN))
+    profile = build_profile(load_plan(str(plan)), fx)
+    cfg = SimConfig(imu_rate_hz=50.0, seed=3, start_stamp_ns=1000 * 10**9,
+                    joint_offset_sigma_rad=1e-3, link_sigma_m=2e-3)
+    ref = simulate(fx, profile, load_grade('mems_mti1'), cfg)
+    nominal = simulate(fx, profile, load_grade('mems_mti1'),
+                       dataclasses.replace(cfg, joint_offset_sigma_rad=0.0, link_sigma_m=0.0))
+    offs = ref.truth.extra['chain_errors']['joint_zero_offsets_rad']
+    assert float(m.group(1)) == pytest.approx(offs['shoulder_pan_joint'] * 1e3, abs=1e-3)
+    assert float(m.group(2)) == pytest.approx(offs['wrist_3_joint'] * 1e3, abs=1e-3)
+    stamps = [msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec for msg in got]
+    acc = np.array([[msg.linear_acceleration.x, msg.linear_acceleration.y,
+                     msg.linear_acceleration.z] for msg in got])
+    n = len(ref.imu)
+    assert stamps[:n] == ref.imu.stamps_ns.tolist(), (len(got), n)
+    assert np.array_equal(acc[:n], ref.imu.accel_m_s2)
+    assert np.abs(acc[:n] - nominal.imu.accel_m_s2).max() > 1e-3
+    saved = CalibrationResult.load(truth)
+    assert saved.extra['chain_errors'] == ref.truth.extra['chain_errors']
+
+
+def test_fixture_changes_names_what_differs() -> None:
+    """The text the calibration node logs and reports for a changed robot_description:
+    nothing for the same chain; the site, the joints, the IMU's place otherwise."""
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.urdf_fixture import UrdfOptions
+    from imu_calib_ros.nodes.fixture_source import fixture_changes
+    arm = load_fixture(str(ARM), UrdfOptions(**CHAIN))
+    assert fixture_changes(arm, load_fixture(str(ARM), UrdfOptions(**CHAIN))) == []
+    south = load_fixture(str(ARM), UrdfOptions(**CHAIN, latitude_deg=-33.5))
+    assert fixture_changes(arm, south) == ['site latitude 55.7 -> -33.5 deg']
+    tool = load_fixture(str(ARM), UrdfOptions('base_link', 'tool0'))
+    assert fixture_changes(arm, tool) == ['IMU position [0, 112.3, 0] -> [0, 82.3, 0] mm']
+    short = load_fixture(str(ARM), UrdfOptions('base_link', 'wrist_2_link'))
+    assert fixture_changes(arm, short)[0] == (
+        'joints [shoulder_pan_joint, shoulder_lift_joint, elbow_joint, wrist_1_joint, '
+        'wrist_2_joint, wrist_3_joint] -> [shoulder_pan_joint, shoulder_lift_joint, '
+        'elbow_joint, wrist_1_joint, wrist_2_joint]')
+
+
+def test_calibration_node_on_a_changed_robot_description(ros: Node, tmp_path: Path) -> None:
+    """robot_state_publisher republishes the URDF when it changes. The calibration node
+    started with ``fixture:=robot_description``: a different chain before any IMU data is
+    adopted (one line naming the change); the same text again is ignored; a different text
+    with the same chain (a comment) changes nothing; a different chain while calibrating is
+    NOT applied: one WARN line naming what changed, ``/diagnostics`` WARN with it, and
+    ``~/reset`` restarts the calibration on the new chain; a URDF without the chain is
+    ignored, WARN saying why."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    from imu_calib_ros.nodes.common import latched_qos
+    urdf = ARM.read_text()
+    mount = '<origin xyz="0 0 0.03" rpy="0 0 0"/>'
+    assert urdf.count(mount) == 1
+    moved = urdf.replace(mount, '<origin xyz="0 0 0.05" rpy="0 0 0"/>')  # IMU 2 cm further
+    elbow = re.search(r'<joint name="elbow_joint".*?</joint>', moved, re.S).group(0)
+    limited = moved.replace(elbow, re.sub(r'upper="[^"]*"', 'upper="2.0"', elbow))
+    assert limited != moved
+    desc = ros.create_publisher(String, 'robot_description', latched_qos())
+    desc.publish(String(data=urdf))
+    diags: list[Any] = []
+    sub = ros.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    reset = ros.create_client(Trigger, '/calibration/reset')
+    cal = start_node('calibration', {'fixture': 'robot_description', **CHAIN,
+                                     'diagnostics_rate_hz': 5.0}, tmp_path)
+    sim = None
+
+    def status() -> Any:
+        st = [x for d in diags for x in d.status if x.name.endswith('IMU calibration')]
+        return st[-1] if st else None
+
+    def value(key: str) -> str:
+        st = status()
+        return {kv.key: kv.value for kv in st.values}.get(key, '') if st else ''
+
+    def wait(cond: Any, what: str, timeout_s: float = 30.0) -> None:
+        diags.clear()
+        assert spin_until(ros, cond, timeout_s), f'{what}: {status()}\n{stop_node(cal)}'
+
+    try:
+        assert reset.wait_for_service(timeout_sec=60.0), stop_node(cal)
+        wait(lambda: status() is not None, 'diagnostics')
+        desc.publish(String(data=moved))  # before any IMU data: adopted
+        wait(lambda: 'update 1 adopted before any IMU data' in value('robot_description'),
+             'adopted')
+        assert 'IMU position [0, 112.3, 0] -> [0, 132.3, 0] mm' in value('robot_description')
+        desc.publish(String(data=moved))  # the same text: ignored (no update 2)
+        desc.publish(String(data=moved + '<!-- a comment -->\n'))  # the same chain
+        wait(lambda: value('robot_description').startswith('update 2: the same chain'),
+             'same chain')
+        sim = start_node('turntable_sim', {'fixture': str(ARM), **CHAIN, 'imu_rate_hz': 100.0,
+                                           'imu_grade': 'mems_mti1', 'publish_clock': False},
+                         tmp_path)
+        wait(lambda: int(value('imu') or 0) > 100, 'IMU data')
+        desc.publish(String(data=limited))  # while calibrating: kept, WARN
+        wait(lambda: status() is not None and status().level == DiagnosticStatus.WARN
+             and 'robot_description changed while calibrating' in status().message, 'WARN')
+        msg = status().message
+        assert "kept the run's chain" in msg, msg
+        assert 'elbow_joint upper limit 180 -> 114.592 deg' in msg, msg
+        assert '~/reset restarts the calibration on the new chain' in msg, msg
+        assert value('robot_description').startswith('update 3 NOT applied'), value(
+            'robot_description')
+        fut = reset.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=60.0)
+        res = fut.result()
+        assert res is not None and res.success, res
+        assert 'adopted the chain from the latest robot_description: fixture from URDF ' \
+            '<robot_description>' in res.message, res.message
+        wait(lambda: value('robot_description') == 'update 3 adopted at ~/reset', 'reset')
+        assert 'robot_description' not in status().message, status().message
+        desc.publish(String(data='<robot name="broken"><link name="base_link"/></robot>'))
+        wait(lambda: status() is not None and status().message.startswith(
+            'robot_description update 4 ignored (cannot build the chain: '), 'broken URDF')
+        assert status().level == DiagnosticStatus.WARN, status()
+        assert 'imu_calib_site: a URDF fixture needs' in status().message, status().message
+    finally:
+        log = (stop_node(sim, wait_s=10.0) if sim is not None else '') + stop_node(cal,
+                                                                                  wait_s=10.0)
+        ros.destroy_client(reset)
+        ros.destroy_subscription(sub)
+        ros.destroy_publisher(desc)
+    assert 'Traceback' not in log, log[-3000:]
+    lines = log.splitlines()
+    adopted = [ln for ln in lines if 'robot_description changed before any IMU data: '
+               'adopted the new chain' in ln]
+    assert len(adopted) == 1 and 'IMU link imu_link at [0, 0.1323, 0] m' in adopted[0], log
+    warned = [ln for ln in lines if 'robot_description changed while calibrating' in ln]
+    assert len(warned) == 1 and 'WARN' in warned[0], log
+    assert sum("the chain is the same as the run's" in ln for ln in lines) == 1, log
 
 
 def _run_driver(tmp_path: Path, params: dict[str, Any]) -> tuple[int, str]:

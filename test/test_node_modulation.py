@@ -37,6 +37,41 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.parametrize('mode', ['continuous', 'four'])
 def test_node_output_equals_offline_causal(mode: str) -> None:
+    _node_equals_offline(mode, ['fixture:=three_axis'])
+
+
+def test_node_takes_the_urdf_from_robot_description() -> None:
+    """``fixture:=robot_description`` (issue 15, the calibration node's loader): the shipped
+    table as URDF (config/fixtures/three_axis.urdf) on the topic, latched as
+    robot_state_publisher publishes it; the node says what it built and its output equals
+    the offline demodulation with the YAML fixture, sample for sample."""
+    log = _node_equals_offline('continuous', [
+        'fixture:=robot_description', 'base_link:=base_link', 'imu_link:=imu_link'],
+        urdf=(ROOT / 'config' / 'fixtures' / 'three_axis.urdf').read_text())
+    assert 'fixture from URDF <robot_description>: chain base_link -> imu_link, 3 joints ' \
+        '[outer (continuous), middle (continuous), inner (continuous)]' in log, log[-2000:]
+
+
+def test_node_refuses_urdf_parameters_with_a_yaml_fixture(tmp_path: Path) -> None:
+    """The URDF parameters are the calibration node's (one owner): with a YAML fixture they
+    are refused, one line, exit 2; an unknown link of a URDF file too."""
+    for params, words in ((['fixture:=three_axis', 'imu_link:=imu_link'],
+                           'imu_link applies to a URDF fixture only'),
+                          (['fixture:=three_axis.urdf', 'imu_link:=tool9'],
+                           "imu_link: no link 'tool9'")):
+        cmd = [sys.executable, '-m', 'imu_calib_ros.nodes.modulation', '--ros-args']
+        for p in params:
+            cmd += ['-p', p]
+        out = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+        err = [ln for ln in (out.stdout + out.stderr).splitlines()
+               if ln.startswith('modulation: error:')]
+        assert out.returncode == 2 and len(err) == 1 and words in err[0], out
+
+
+def _node_equals_offline(mode: str, fixture_params: list[str], urdf: str = '') -> str:
+    """Run the node with ``fixture_params`` on a simulated spin of the three-axis table's
+    inner axis; assert its output equals the offline demodulation; its log. ``urdf``:
+    published on ``robot_description`` (transient local) before the node starts."""
     fx = load_fixture('three_axis')
     plan = plan_from_dict({'name': 'm', 'steps': [
         {'dwell': {'duration_s': 0.5}},
@@ -48,13 +83,20 @@ def test_node_output_equals_offline_causal(mode: str) -> None:
                              wrap_joint_positions=True))
     ref = mod.demodulate(sim.imu, sim.joints, fx, mod.DemodulationOptions(
         mode, joint='inner', causal=mode == 'continuous'))
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'imu_calib_ros.nodes.modulation', '--ros-args', '-p',
-         'fixture:=three_axis', '-p', 'joint:=inner', '-p', f'mode:={mode}', '-p',
-         'queue_depth:=5000', '-p', 'qos_overrides./imu/data_raw.subscription.reliability:='
-         'reliable'], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     rclpy.init(args=[])
     node = rclpy.create_node(f'test_modulation_{os.getpid()}')
+    if urdf:
+        from std_msgs.msg import String
+
+        from imu_calib_ros.nodes.common import latched_qos
+        desc = node.create_publisher(String, 'robot_description', latched_qos())
+        desc.publish(String(data=urdf))
+    params = [x for p in fixture_params for x in ('-p', p)]
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'imu_calib_ros.nodes.modulation', '--ros-args', *params,
+         '-p', 'joint:=inner', '-p', f'mode:={mode}', '-p',
+         'queue_depth:=5000', '-p', 'qos_overrides./imu/data_raw.subscription.reliability:='
+         'reliable'], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     got: dict[int, object] = {}
     try:
         pub_i = node.create_publisher(Imu, 'imu/data_raw', reliable_qos(5000))
@@ -99,6 +141,7 @@ def test_node_output_equals_offline_causal(mode: str) -> None:
         np.testing.assert_allclose(s.gyro_rad_s, ref.gyro_rad_s[i], rtol=0, atol=1e-9)
         np.testing.assert_allclose(s.accel_m_s2, ref.accel_m_s2[i], rtol=0, atol=1e-9)
         assert s.frame_id == f'{sim.imu.frame_id}_body'
+    return log
 
 
 def test_node_under_sample_loss_is_right_or_withholds_and_says_so() -> None:

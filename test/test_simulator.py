@@ -193,3 +193,46 @@ def test_interval_means_match_adaptive_quadrature_across_breakpoints() -> None:
         ref = [quad(f, a, b, args=(i,), points=[bp], epsabs=1e-15, epsrel=1e-14)[0] / dt
                for i in range(3)]
         np.testing.assert_allclose(res.imu.accel_m_s2[k], ref, rtol=0, atol=1e-12)
+
+
+def test_arm_errors_are_a_fifth_random_stream_and_the_data_come_from_them() -> None:
+    """SimConfig's joint_offset_sigma_rad/link_sigma_m (imu-calib simulate and turntable_sim
+    use them): without them every draw is as before (the sensor errors, mounting, noise and
+    encoder noise are spawn(4)'s children); with them the IMU is exactly the simulation of
+    the chain perturbed_chain draws from the fifth child, the joint states are unchanged
+    (encoder readings), and the truth's last-link mounting and lever arm are those
+    calibration_truth gives the estimator."""
+    from scipy.spatial.transform import Rotation
+
+    from imu_calib_ros.core.estimator.truth import last_link_truth
+    from imu_calib_ros.core.fixture import perturbed_chain
+    from imu_calib_ros.core.urdf_fixture import UrdfOptions
+    fx = load_fixture('arm6.urdf', UrdfOptions('base_link', 'imu_link'))
+    prof = build_profile(_plan([{'dwell': {'duration_s': 0.5}},
+                                {'move': {'joint': 'elbow_joint', 'by_deg': 30,
+                                          'duration_s': 1}}]), fx)
+    g = load_grade('mems_mti1')
+    cfg = SimConfig(imu_rate_hz=50.0, seed=5)
+    plain = simulate(fx, prof, g, cfg)
+    arm = simulate(fx, prof, g, dataclasses.replace(cfg, joint_offset_sigma_rad=1e-3,
+                                                    link_sigma_m=2e-3))
+    rng = np.random.default_rng(np.random.SeedSequence(5).spawn(5)[4])
+    true_chain, offsets, dxyz = perturbed_chain(fx, rng, 1e-3, 2e-3)
+    mnt = plain.truth.extra['mounting']
+    again = simulate(true_chain, prof, g, cfg)
+    assert np.array_equal(arm.imu.gyro_rad_s, again.imu.gyro_rad_s)
+    assert np.array_equal(arm.imu.accel_m_s2, again.imu.accel_m_s2)
+    assert np.abs(arm.imu.gyro_rad_s - plain.imu.gyro_rad_s).max() > 1e-5
+    assert np.array_equal(arm.joints.positions_rad, plain.joints.positions_rad)
+    assert arm.truth.extra['mounting'] == mnt
+    assert np.array_equal(arm.bias_drift_gyro_rad_s, plain.bias_drift_gyro_rad_s)
+    ce = arm.truth.extra['chain_errors']
+    assert 'chain_errors' not in plain.truth.extra
+    assert list(ce['joint_zero_offsets_rad'].values()) == offsets.tolist()
+    assert list(ce['joint_origin_errors_m'].values()) == dxyz.tolist()
+    rho, R_m = last_link_truth(fx, arm.true_fixture)
+    assert np.allclose(ce['last_link']['lever_arm_m'], rho, rtol=0, atol=1e-15)
+    assert np.allclose(ce['last_link']['mounting_rotvec_rad'],
+                       Rotation.from_matrix(R_m).as_rotvec(), rtol=0, atol=1e-15)
+    # the last joint's zero offset is in the reported mounting (about its axis)
+    assert abs(np.linalg.norm(ce['last_link']['mounting_rotvec_rad'])) > 0.5 * abs(offsets[-1])

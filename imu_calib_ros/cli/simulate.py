@@ -4,13 +4,15 @@
                        [--rate HZ] [--joint-rate HZ] [--seed N] [--storage mcap|sqlite3]
                        [--no-noise] [--no-errors] [--imu-topic T] [--joint-topic T]
                        [--frame-id F] [--truth PATH] [--force]
+                       [--joint-offset-sigma-rad RAD] [--link-sigma-m M]
 
 F, P and GRADE are shipped names (``config/fixtures``, ``config/plans``, ``config/imus``) or
 paths. ``BAG`` is a bag directory, or a single file if it ends in ``.mcap``. The true
 parameters go to ``truth.yaml`` beside the bag (in the bag's parent directory; ``--truth``
 chooses another path) in the CONTRACT 4 layout with the extra keys ``mounting``, ``noise``
-and ``provenance``. Existing outputs are refused unless ``--force``; nothing partial is left
-behind on failure (temporary names, then rename).
+and ``provenance`` (and ``chain_errors``: the arm's drawn joint zero offsets and joint-origin
+errors, with ``--joint-offset-sigma-rad``/``--link-sigma-m``). Existing outputs are refused
+unless ``--force``; nothing partial is left behind on failure (temporary names, then rename).
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ def register(subparsers: Any) -> None:
                    help='fixture: shipped name or YAML path (CONTRACT 2), or a .urdf with '
                    '--base-link and --imu-link')
     add_urdf_arguments(p)
+    add_chain_error_arguments(p)
     p.add_argument('--plan', required=True, metavar='P',
                    help='motion plan: shipped name or YAML path')
     p.add_argument('--imu', required=True, metavar='GRADE|FILE',
@@ -64,6 +67,26 @@ def register(subparsers: Any) -> None:
     p.add_argument('--force', action='store_true',
                    help='replace existing output bag and truth file')
     p.set_defaults(func=run)
+
+
+def add_chain_error_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--joint-offset-sigma-rad``, ``--link-sigma-m``: simulate an uncalibrated arm
+    (:attr:`~..core.simulator.SimConfig.joint_offset_sigma_rad`; the ``turntable_sim`` node's
+    parameters of the same names)."""
+    g = parser.add_argument_group('errors of the simulated chain (the data come from it, the '
+                                  'estimator gets the nominal one)')
+    g.add_argument('--joint-offset-sigma-rad', type=float, default=0.0, metavar='RAD',
+                   help='each revolute joint\'s zero off by N(0, RAD) (e.g. 1e-3; default 0)')
+    g.add_argument('--link-sigma-m', type=float, default=0.0, metavar='M',
+                   help='each joint origin (link lengths, offsets) off by N(0, M) per '
+                   'coordinate; not on a turntable (axes through one point) (e.g. 2e-3; '
+                   'default 0)')
+
+
+def _sigma(value: float, name: str) -> float:
+    if not math.isfinite(value) or value < 0.0:
+        raise ConfigError(f'must be a finite number >= 0, got {value!r}', f'argument {name}')
+    return float(value)
 
 
 def truth_path_for(output: Path, truth: str | None) -> Path:
@@ -129,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'must be a non-negative integer, got {args.seed}', 'argument --seed')
     if not args.frame_id:
         raise ConfigError('must not be empty', 'argument --frame-id')
+    offset_sigma = _sigma(args.joint_offset_sigma_rad, '--joint-offset-sigma-rad')
+    link_sigma = _sigma(args.link_sigma_m, '--link-sigma-m')
     for topic, opt in ((args.imu_topic, '--imu-topic'), (args.joint_topic, '--joint-topic')):
         if not topic.startswith('/') or not topic[1:2].isalpha() or ' ' in topic:
             raise ConfigError(f'not a valid topic name: {topic!r}', f'argument {opt}')
@@ -151,7 +176,8 @@ def run(args: argparse.Namespace) -> int:
     profile = build_profile(plan, fixture)
 
     cfg = simulator.SimConfig(imu_rate_hz=rate, joint_rate_hz=joint_rate, seed=args.seed,
-                              noise=not args.no_noise, frame_id=args.frame_id)
+                              noise=not args.no_noise, frame_id=args.frame_id,
+                              joint_offset_sigma_rad=offset_sigma, link_sigma_m=link_sigma)
     t0 = time.monotonic()
     bar = _Progress(100.0, f'simulating {profile.duration_s:.0f} s', '%')
     try:
@@ -177,6 +203,8 @@ def run(args: argparse.Namespace) -> int:
         'imu_topic': args.imu_topic, 'joint_topic': args.joint_topic,
         'imu_samples': len(imu), 'joint_samples': len(result.joints),
     }
+    if offset_sigma or link_sigma:
+        provenance.update(joint_offset_sigma_rad=offset_sigma, link_sigma_m=link_sigma)
     extra = dict(truth.extra)
     extra.setdefault('noise', grade.noise_dict() if not args.no_noise else {})
     extra['provenance'] = {**dict(extra.get('provenance', {})), **provenance}

@@ -60,6 +60,11 @@ class SimConfig:
     start_stamp_ns: int = field(default=1_700_000_000_000_000_000, metadata={'min': 0})
     frame_id: str = 'imu_link'
     block_s: float = field(default=20.0, metadata={'min': 0.1})
+    #: the errors of an uncalibrated arm (issue 15; :func:`~.fixture.perturbed_chain`): each
+    #: revolute joint's zero off by N(0, joint_offset_sigma_rad), each joint origin by
+    #: N(0, link_sigma_m) per coordinate (not on a concurrent turntable); 0 = the nominal chain
+    joint_offset_sigma_rad: float = field(default=0.0, metadata={'min': 0.0})
+    link_sigma_m: float = field(default=0.0, metadata={'min': 0.0})
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,6 +114,36 @@ def draw_mounting(config: SimConfig, rng: np.random.Generator) -> tuple[FloatArr
             rng.normal(0.0, config.mounting_xyz_sigma_m, 3))
 
 
+def draw_chain_errors(fixture: Fixture, rng: np.random.Generator, joint_offset_sigma_rad: float,
+                      link_sigma_m: float) -> tuple[Fixture, dict[str, Any]]:
+    """The true chain of an uncalibrated arm (:func:`~.fixture.perturbed_chain`) and its
+    record for the truth file (``extra['chain_errors']``): the sigmas, and per joint its zero
+    offset [rad] (the joint is at the encoder reading plus this) and origin error [m, parent
+    frame]."""
+    from .fixture import perturbed_chain
+    true_chain, offsets, dxyz = perturbed_chain(fixture, rng, joint_offset_sigma_rad,
+                                                link_sigma_m)
+    return true_chain, {
+        'joint_offset_sigma_rad': float(joint_offset_sigma_rad),
+        'link_sigma_m': float(link_sigma_m),
+        'joint_zero_offsets_rad': {j.name: float(o) for j, o in zip(fixture.joints, offsets)},
+        'joint_origin_errors_m': {j.name: [float(x) for x in d]
+                                  for j, d in zip(fixture.joints, dxyz)}}
+
+
+def last_link_record(nominal: Fixture, true: Fixture) -> dict[str, Any]:
+    """What the estimator reports as lever arm and mounting on a general chain, for the truth
+    file (``extra['chain_errors']['last_link']``): the IMU on the last link as its encoder
+    reads it (:func:`~.estimator.truth.last_link_truth`: the drawn mounting error, the last
+    joint's zero offset and its origin error along its axis)."""
+    from scipy.spatial.transform import Rotation
+
+    from .estimator.truth import last_link_truth
+    rho, R_m = last_link_truth(nominal, true)
+    return {'lever_arm_m': [float(x) for x in rho],
+            'mounting_rotvec_rad': [float(x) for x in Rotation.from_matrix(R_m).as_rotvec()]}
+
+
 def simulate(fixture: Fixture, profile: JointProfile, grade: ImuGrade,
              config: SimConfig = SimConfig(), errors: SensorErrors | None = None,
              mounting: tuple[Any, Any] | None = None,
@@ -139,14 +174,25 @@ def simulate(fixture: Fixture, profile: JointProfile, grade: ImuGrade,
         raise ValueError(f'profile joints {profile.joint_names} do not match the fixture '
                          f'joints {fixture.joint_names}')
     ss = np.random.SeedSequence(config.seed)
-    rng_err, rng_mount, rng_noise, rng_enc = (np.random.default_rng(s) for s in ss.spawn(4))
+    # a fifth child for the arm's errors: the first four (and so every draw of a run without
+    # arm errors) are those of spawn(4)
+    rng_err, rng_mount, rng_noise, rng_enc, rng_chain = (np.random.default_rng(s)
+                                                         for s in ss.spawn(5))
     if errors is None:
         errors = draw_errors(grade, rng_err)
     if mounting is None:
         drpy, dxyz = draw_mounting(config, rng_mount)
     else:
         drpy, dxyz = (np.asarray(m, dtype=float).reshape(3) for m in mounting)
-    true_fx = fixture.with_mounting(drpy, dxyz)
+    chain_truth: dict[str, Any] = {}
+    true_chain = fixture
+    if config.joint_offset_sigma_rad > 0.0 or config.link_sigma_m > 0.0:
+        true_chain, chain_truth = draw_chain_errors(fixture, rng_chain,
+                                                    config.joint_offset_sigma_rad,
+                                                    config.link_sigma_m)
+    true_fx = true_chain.with_mounting(drpy, dxyz)
+    if chain_truth and not fixture.concurrent:
+        chain_truth['last_link'] = last_link_record(fixture, true_fx)
 
     dt_ns = int(round(1e9 / config.imu_rate_hz))
     dt = dt_ns * 1e-9
@@ -189,6 +235,7 @@ def simulate(fixture: Fixture, profile: JointProfile, grade: ImuGrade,
         errors=errors, sigma=SensorErrors.zeros(), frame_id=config.frame_id,
         extra={
             'mounting': {'rpy_rad': [float(x) for x in drpy], 'xyz_m': [float(x) for x in dxyz]},
+            **({'chain_errors': chain_truth} if chain_truth else {}),
             'noise': grade.noise_dict() if config.noise else {},
             # the turn-on biases above plus the simulated in-run drift at the last sample:
             # what an estimator that tracks the total bias should end at

@@ -68,7 +68,8 @@ from ..core.stream_compensation import StreamCompensation
 from ..core.types import ImuBatch, JointBatch, JointSample
 from .common import (Endpoint, NodeInterface, declare_config, finite, latched_qos,
                      publish_corrected, quiet_publisher, reliable_qos, run_node, sensor_qos)
-from .fixture_source import load_node_fixture, urdf_field
+from .fixture_source import (RobotDescriptionWatcher, describe_fixture,
+                             load_node_fixture_and_urdf, urdf_field)
 from .input_thread import InputThread
 
 NODE_NAME = 'calibration'
@@ -201,7 +202,7 @@ class CalibrationNode(Node):
         from ..core.estimator import CalibrationEstimator
         from ..core.imu_grade import load_grade
         # a file, a shipped name, or the robot_description topic (waits; one line either way)
-        self.fixture = load_node_fixture(self, cfg)
+        self.fixture, urdf_text = load_node_fixture_and_urdf(self, cfg)
         self.grade = load_grade(cfg.imu_grade) if cfg.imu_grade else None
         self.joint_names = tuple(self.fixture.joint_names)
         prior = CalibrationEstimator(self.fixture, self.grade, cfg.estimator).estimate(
@@ -220,6 +221,15 @@ class CalibrationNode(Node):
                                       (self.fixture, cfg.imu_grade, cfg.estimator),
                                       cfg.frame_id or 'imu_link', cfg.estimator_queue_batches)
         self._good_seq = -1
+        # fixture:=robot_description: later URDFs on the topic (robot_state_publisher
+        # republishes on a change); see _on_robot_description
+        self._has_data = False  # the run has accepted IMU data (cleared by ~/reset)
+        self._next_chain: Any = None  # a changed chain kept out of this run (~/reset adopts)
+        self._description_note = ''  # for /diagnostics: what the last change did
+        self._description_warn = ''  # WARN text while the topic's chain is not the run's
+        self._watcher = (RobotDescriptionWatcher(self, cfg, urdf_text, lambda: self.fixture,
+                                                 self._on_robot_description)
+                         if urdf_text is not None else None)
         # filled by the IMU input thread and the joint thread, drained by the filter timer
         self._pending_imu: collections.deque[tuple[int, Any, Any]] = collections.deque()
         self._pending_joints: collections.deque[JointSample] = collections.deque()
@@ -305,6 +315,8 @@ class CalibrationNode(Node):
         """Publish what the stream accepted (compensated), queue it for the estimator."""
         if step.adopted_frame:
             self.runner.set_frame_id(step.adopted_frame)
+        if step.accepted:
+            self._has_data = True
         for c in step.accepted:
             if publish_corrected(self._pub, c):  # else counted as compensation_non_finite
                 self.counts['published'] += 1
@@ -355,6 +367,70 @@ class CalibrationNode(Node):
         self.runner.command('reset_navigation')
         self.get_logger().warn(f'time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: '
                                'estimator navigation restarted (calibration kept)')
+
+    # ------------------------------------------------------------------ robot_description
+    def _on_robot_description(self, fixture: Any, changes: list[str], error: str) -> None:
+        """A URDF on ``robot_description`` other than the last one (executor thread).
+
+        Never two chains in one calibration: a different chain is adopted only while the run
+        has no IMU data (a new estimator on it, one INFO line); once data came the run keeps
+        its chain, says once (WARN line, ``/diagnostics`` WARN) what changed, and ``~/reset``
+        restarts the calibration on the new chain. The same chain (another text: meshes,
+        colours, links off the chain) changes nothing; a URDF that cannot be built is
+        ignored with a WARN saying why.
+        """
+        log = self.get_logger()
+        if fixture is None:
+            self._description_note = (f'update {self._watcher_updates()} ignored (cannot build '
+                                      f'the chain: {error}); calibrating on the chain it '
+                                      'started with')
+            self._description_warn = f'robot_description {self._description_note}'
+            log.warn(self._description_warn)
+            return
+        if not changes:
+            was = self._next_chain is not None or self._description_warn
+            self._next_chain = None
+            self._description_warn = ''
+            self._description_note = (f'update {self._watcher_updates()}: the same chain '
+                                      '(kinematics unchanged), nothing to do')
+            log.info(f'robot_description changed, the chain is the same as the run\'s'
+                     f'{" again" if was else ""}: nothing to do')
+            return
+        what = '; '.join(changes)
+        if not self._has_data:
+            self._adopt(fixture)
+            self._description_note = (f'update {self._watcher_updates()} adopted before any '
+                                      f'IMU data: {what}')
+            self._description_warn = ''
+            log.info(f'robot_description changed before any IMU data: adopted the new chain '
+                     f'({what}); {describe_fixture(fixture, self.config)}')
+            return
+        self._next_chain = fixture
+        self._description_note = (f'update {self._watcher_updates()} NOT applied: the '
+                                  f'calibration keeps the chain it started with; changed: '
+                                  f'{what}; ~/reset restarts it on the new chain')
+        self._description_warn = (f'robot_description changed while calibrating: kept the '
+                                  f'run\'s chain (a calibration never mixes two); changed: '
+                                  f'{what}; ~/reset restarts the calibration on the new chain')
+        log.warn(self._description_warn)
+
+    def _watcher_updates(self) -> int:
+        return self._watcher.updates if self._watcher is not None else 0
+
+    def _adopt(self, fixture: Any) -> None:
+        """Run on ``fixture`` from now: a new estimator on it (the old one and anything queued
+        for it dropped)."""
+        cfg = self.config
+        self._clear_pending()
+        self.runner.stop()
+        self.fixture = fixture
+        self.joint_names = tuple(fixture.joint_names)
+        self._joint_ok = False
+        self._last_joint_ns = None
+        self._good_seq = -1
+        self.runner = EstimatorRunner(cfg.estimator_mode, (fixture, cfg.imu_grade, cfg.estimator),
+                                      self.frame_id or cfg.frame_id or 'imu_link',
+                                      cfg.estimator_queue_batches)
 
     # ------------------------------------------------------------------ estimator
     def _hand_over(self) -> None:
@@ -466,6 +542,8 @@ class CalibrationNode(Node):
                        for k, v in self.stream.reorder.stats.as_dict().items() if v})
         values.update(health_values(health))
         values['estimator_alive'] = str(self.runner.alive)
+        if self._description_note:
+            values['robot_description'] = self._description_note
         account = self.account(health, snap)
         values['input'] = account['summary']
         self._check_frames(imu_n)
@@ -545,6 +623,8 @@ class CalibrationNode(Node):
             return DiagnosticStatus.ERROR, msg
         if snap is not None and snap.error:
             return DiagnosticStatus.ERROR, snap.error
+        if self._description_warn:
+            return DiagnosticStatus.WARN, self._description_warn
         if self.compensation.rate_mismatch:
             return DiagnosticStatus.WARN, self.compensation.rate_mismatch
         bad = sum(reasons.values()) + self.counts['missing_imu'] + self.counts['missing_joint']
@@ -619,7 +699,16 @@ class CalibrationNode(Node):
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         self._clear_pending()
         self.stream.restart()
+        adopted = ''
+        if self._next_chain is not None:  # the chain robot_description changed to
+            fixture, self._next_chain = self._next_chain, None
+            self._adopt(fixture)
+            adopted = (f'; adopted the chain from the latest robot_description: '
+                       f'{describe_fixture(fixture, self.config)}')
+            self._description_note = f'update {self._watcher_updates()} adopted at ~/reset'
+            self._description_warn = ''
         ok = self.runner.request('reset', 30.0)
+        self._has_data = False
         self.stream.reset_counts()
         self._joint_rejected = {k: 0 for k in self._joint_rejected}
         self.stream.last_ns = None
@@ -628,7 +717,7 @@ class CalibrationNode(Node):
         self.compensation.reset()
         self._hand_over()
         response.success = ok
-        response.message = 'estimator reset' if ok else 'the estimator did not answer'
+        response.message = ('estimator reset' if ok else 'the estimator did not answer') + adopted
         self.get_logger().info(response.message)
         return response
 
@@ -661,8 +750,10 @@ INTERFACE = NodeInterface(
         Endpoint('joint_states', 'sensor_msgs/msg/JointState',
                  'positions of the fixture joints; sensor-data QoS'),
         Endpoint('robot_description', 'std_msgs/msg/String',
-                 'with fixture:=robot_description only: the URDF, once at start (reliable, '
-                 'transient local, as robot_state_publisher publishes it)'),
+                 'with fixture:=robot_description only: the URDF at start (reliable, '
+                 'transient local, as robot_state_publisher publishes it); a changed chain '
+                 'later is adopted only before any IMU data, else kept out of the run (WARN, '
+                 '~/reset adopts it)'),
         Endpoint('/clock', 'rosgraph_msgs/msg/Clock', 'with use_sim_time:=true')),
     publishes=(
         Endpoint('imu/data_corrected', 'sensor_msgs/msg/Imu',
@@ -677,7 +768,8 @@ INTERFACE = NodeInterface(
     services=(
         Endpoint('~/save_calibration', 'std_srvs/srv/Trigger',
                  'write the last good estimate to output_file (CONTRACT 4, atomic)'),
-        Endpoint('~/reset', 'std_srvs/srv/Trigger', 'restart the estimator')))
+        Endpoint('~/reset', 'std_srvs/srv/Trigger', 'restart the estimator (on the chain of '
+                 'a robot_description change it did not apply)')))
 
 
 def main(args: list[str] | None = None) -> int:

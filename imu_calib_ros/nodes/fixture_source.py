@@ -16,10 +16,13 @@ subscriber gets the latest), up to ``robot_description_timeout_s``, and builds t
 from that XML with the same :func:`~imu_calib_ros.core.urdf_fixture.fixture_from_urdf` the
 ``.urdf`` files go through. The node logs one line saying what it built
 (:func:`describe_fixture`), or refuses to start with one line saying why (a
-:class:`~imu_calib_ros.core.errors.ConfigError`: exit status 2).
+:class:`~imu_calib_ros.core.errors.ConfigError`: exit status 2). The calibration node
+keeps listening (:class:`RobotDescriptionWatcher`) and decides what a changed chain
+(:func:`fixture_changes`) does to its run (docs/NODES.md, "Robot arms").
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import field
 from typing import Any
@@ -83,7 +86,14 @@ def _urdf_options_given(cfg: Any) -> list[str]:
 def load_node_fixture(node: Any, cfg: Any) -> Any:
     """The :class:`~imu_calib_ros.core.fixture.Fixture` of ``cfg.fixture``: a shipped name or
     a file (YAML or ``.urdf``), or :data:`ROBOT_DESCRIPTION` (wait for the topic, see the
-    module docstring). Logs one line saying what was built.
+    module docstring). Logs one line saying what was built. See
+    :func:`load_node_fixture_and_urdf`."""
+    return load_node_fixture_and_urdf(node, cfg)[0]
+
+
+def load_node_fixture_and_urdf(node: Any, cfg: Any) -> tuple[Any, str | None]:
+    """:func:`load_node_fixture` and, with ``fixture: robot_description``, the URDF text it was
+    built from (else None), for :class:`RobotDescriptionWatcher`.
 
     Raises
     ------
@@ -95,8 +105,9 @@ def load_node_fixture(node: Any, cfg: Any) -> Any:
     from ..core.fixture import load_fixture
     from ..core.urdf_fixture import is_urdf
     source = cfg.fixture
+    text = None
     if source == ROBOT_DESCRIPTION:
-        source = wait_for_robot_description(node, cfg.robot_description_timeout_s)
+        source = text = wait_for_robot_description(node, cfg.robot_description_timeout_s)
     fixture = load_fixture(source, urdf_options(cfg))
     if not is_urdf(str(fixture.source or '')):
         given = _urdf_options_given(cfg)
@@ -106,7 +117,7 @@ def load_node_fixture(node: Any, cfg: Any) -> Any:
                               f' robot_description); {cfg.fixture} is a CONTRACT 2 YAML '
                               'fixture', 'ROS parameters')
     node.get_logger().info(describe_fixture(fixture, cfg))
-    return fixture
+    return fixture, text
 
 
 def describe_fixture(fixture: Any, cfg: Any) -> str:
@@ -166,3 +177,101 @@ def wait_for_robot_description(node: Any, timeout_s: float) -> str:
                           'fixture robot_description')
     return got[-1]
 
+
+
+def _vec(v: Any, scale: float = 1.0) -> str:
+    import numpy as np
+    a = np.zeros(3) if v is None else np.asarray(v, float) * scale
+    return '[' + ', '.join(f'{x + 0.0:.6g}' for x in a.round(9)) + ']'
+
+
+def _num(x: float | None) -> str:
+    return 'none' if x is None else f'{x:.6g}'
+
+
+def fixture_changes(old: Any, new: Any) -> list[str]:
+    """What differs between two fixtures' kinematics, one short text per difference (empty:
+    the same chain; a URDF edit of meshes, colours or links off the chain changes nothing):
+    the joints (names, order), per joint its type, axis, origin [mm, deg] and limits, the IMU
+    on the last link, and the site."""
+    import numpy as np
+
+    from ..core.rotation import matrix_to_rpy
+    out: list[str] = []
+    s0, s1 = old.site, new.site
+    for attr, unit in (('latitude_deg', 'deg'), ('height_m', 'm'), ('gravity_m_s2', 'm/s^2')):
+        a, b = getattr(s0, attr), getattr(s1, attr)
+        if a != b:
+            out.append(f'site {attr.rsplit("_", 1)[0] if attr != "gravity_m_s2" else "gravity"}'
+                       f' {a} -> {b} {unit}')
+    if tuple(old.joint_names) != tuple(new.joint_names):
+        out.append(f'joints [{", ".join(old.joint_names)}] -> [{", ".join(new.joint_names)}]')
+    else:
+        for j0, j1 in zip(old.joints, new.joints):
+            if j0.kind != j1.kind:
+                out.append(f'{j0.name} type {j0.kind} -> {j1.kind}')
+            if not np.allclose(j0.axis, j1.axis, rtol=0, atol=1e-12):
+                out.append(f'{j0.name} axis {_vec(j0.axis)} -> {_vec(j1.axis)}')
+            x0 = np.zeros(3) if j0.origin_xyz_m is None else j0.origin_xyz_m
+            x1 = np.zeros(3) if j1.origin_xyz_m is None else j1.origin_xyz_m
+            if not np.allclose(x0, x1, rtol=0, atol=1e-12):
+                out.append(f'{j0.name} origin xyz {_vec(x0, 1e3)} -> {_vec(x1, 1e3)} mm')
+            R0 = np.eye(3) if j0.origin_R is None else j0.origin_R
+            R1 = np.eye(3) if j1.origin_R is None else j1.origin_R
+            if not np.allclose(R0, R1, rtol=0, atol=1e-12):
+                out.append(f'{j0.name} origin rpy {_vec(np.degrees(matrix_to_rpy(R0)))} -> '
+                           f'{_vec(np.degrees(matrix_to_rpy(R1)))} deg')
+            rot = j0.kind != 'prismatic'
+            for lim, unit in (('lower', 'deg' if rot else 'm'), ('upper', 'deg' if rot else 'm'),
+                              ('velocity', 'deg/s' if rot else 'm/s')):
+                a, b = getattr(j0, lim), getattr(j1, lim)
+                if a != b:
+                    a, b = (None if x is None else math.degrees(x) if rot else x for x in (a, b))
+                    out.append(f'{j0.name} {lim} limit {_num(a)} -> {_num(b)} {unit}')
+    if not np.allclose(old.imu_xyz_m, new.imu_xyz_m, rtol=0, atol=1e-12):
+        out.append(f'IMU position {_vec(old.imu_xyz_m, 1e3)} -> {_vec(new.imu_xyz_m, 1e3)} mm')
+    if not np.allclose(old.R_joint_imu, new.R_joint_imu, rtol=0, atol=1e-12):
+        out.append(f'IMU rpy {_vec(np.degrees(old.imu_rpy_rad))} -> '
+                   f'{_vec(np.degrees(new.imu_rpy_rad))} deg')
+    return out
+
+
+class RobotDescriptionWatcher:
+    """Later messages on ``robot_description`` (robot_state_publisher republishes the URDF
+    when it changes), after the node started with the first one.
+
+    Each message whose text differs from the last one seen is built into a fixture with the
+    node's URDF options and handed to ``on_change(fixture or None, changes, error)``:
+    ``changes`` (:func:`fixture_changes`) against ``current()`` (the fixture the node runs
+    on), ``error`` the one-line reason when the URDF cannot be built (``fixture`` None). A
+    message with the same text (the latched one the subscription gets at once, or a republish
+    of the same model) is ignored. Callbacks run in the node's executor.
+    """
+
+    def __init__(self, node: Any, cfg: Any, text: str, current: Any, on_change: Any) -> None:
+        from std_msgs.msg import String
+
+        from .common import latched_qos
+        self._cfg, self._text = cfg, text
+        self._current, self._on_change = current, on_change
+        self.updates = 0  # messages with a different text
+        self.sub = node.create_subscription(String, ROBOT_DESCRIPTION_TOPIC, self._on_msg,
+                                            latched_qos())
+
+    def _on_msg(self, msg: Any) -> None:
+        if msg.data == self._text:
+            return
+        self._text = msg.data
+        self.updates += 1
+        from ..core.errors import ImuCalibError
+        from ..core.fixture import load_fixture
+        if not msg.data.strip():
+            self._on_change(None, [], 'an empty string, not a URDF')
+            return
+        try:
+            fixture = load_fixture(msg.data, urdf_options(self._cfg))
+        except Exception as exc:  # whatever the model: never end a running calibration
+            self._on_change(None, [], str(exc) if isinstance(exc, ImuCalibError)
+                            else f'{type(exc).__name__}: {exc}')
+            return
+        self._on_change(fixture, fixture_changes(self._current(), fixture), '')

@@ -8,7 +8,10 @@ control-point variants (1, 2 or 4 outputs per revolution). All arithmetic is
 :class:`~imu_calib_ros.core.methods.modulation.StreamingDemodulator` (equal to the offline
 ``imu-calib modulate`` with causal bias); output starts after the first full revolution.
 
-Run: ``modulation --ros-args -p fixture:=three_axis -p joint:=inner [-p mode:=four]``.
+Run: ``modulation --ros-args -p fixture:=three_axis -p joint:=inner [-p mode:=four]``. The
+fixture is any the calibration node takes (a CONTRACT 2 YAML, a ``.urdf`` with ``base_link``
+and ``imu_link``, or ``robot_description``: the URDF on that topic), loaded by the same
+:func:`~imu_calib_ros.nodes.fixture_source.load_node_fixture`.
 Spun by :func:`~imu_calib_ros.nodes.common.run_node` with a SingleThreadedExecutor: under
 rclpy's experimental EventsExecutor (this Jazzy build) the node matched its topics but no
 callback ever ran and SIGINT was ignored (found with a faulthandler stack dump: the
@@ -35,11 +38,11 @@ from sensor_msgs.msg import Imu, JointState
 from msg_adapters.convert import imu_msg_from_sample, imu_sample_from_msg, joint_sample_from_msg
 
 from ..core.errors import ConfigError
-from ..core.fixture import load_fixture
 from ..core.methods.modulation import MODES, StreamingDemodulator
 from ..core.reorder import ReorderBuffer
 from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit,
                      quiet_publisher, reliable_qos, run_node, sensor_qos)
+from .fixture_source import load_node_fixture, urdf_field
 
 NODE_NAME = 'modulation'
 
@@ -49,8 +52,17 @@ class ModulationConfig:
     """Parameters of the modulation node."""
 
     fixture: str = field(default='', metadata={
-        'doc': 'fixture name or YAML path (CONTRACT 2): the modulation joint axis',
+        'doc': 'fixture file (CONTRACT 2 YAML or a .urdf), shipped fixture name, or '
+               'robot_description (the URDF on that topic): the modulation joint axis',
         'required': True})
+    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
+    base_link: str = urdf_field('base_link')
+    imu_link: str = urdf_field('imu_link')
+    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
+    site_height_m: float | None = urdf_field('site_height_m')
+    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
+    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
+    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     joint: str = field(default='', metadata={
         'doc': 'modulation joint name; empty = the innermost joint'})
     mode: str = field(default='continuous', metadata={
@@ -86,7 +98,8 @@ class ModulationNode(Node):
         if cfg.mode != 'continuous' and cfg.mode not in MODES:
             raise ConfigError(f'mode must be continuous, one, two or four, got {cfg.mode!r}',
                               'ROS parameters', 'mode')
-        fx = load_fixture(cfg.fixture)
+        # a file, a shipped name, or the robot_description topic (waits; one line either way)
+        fx = load_node_fixture(self, cfg)
         joint = cfg.joint or fx.joint_names[-1]
         if joint not in fx.joint_names:
             raise ConfigError(f'joint {joint!r} is not a fixture joint {list(fx.joint_names)}',
@@ -211,7 +224,10 @@ INTERFACE = NodeInterface(
     subscribes=(
         Endpoint('imu/data_raw', 'sensor_msgs/msg/Imu', 'raw IMU; sensor-data QoS (override: '
                  '-p qos_overrides./imu/data_raw.subscription.reliability:=reliable)'),
-        Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'fixture joint positions')),
+        Endpoint('joint_states', 'sensor_msgs/msg/JointState', 'fixture joint positions'),
+        Endpoint('robot_description', 'std_msgs/msg/String',
+                 'with fixture:=robot_description only: the URDF, once at start (reliable, '
+                 'transient local)')),
     publishes=(Endpoint('imu/data_body', 'sensor_msgs/msg/Imu',
                         'body-frame stream (continuous, or 1/2/4 points per revolution); '
                         'outputs over a revolution with too much lost are withheld'),

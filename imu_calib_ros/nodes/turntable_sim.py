@@ -63,6 +63,15 @@ class TurntableSimConfig:
         'doc': 'motion plan (config/plans name or path); empty = follow JointTrajectory'})
     seed: int = field(default=0, metadata={'doc': 'random seed (true errors, noise)',
                                            'min': 0})
+    # the arm's own errors, as imu-calib simulate --joint-offset-sigma-rad / --link-sigma-m
+    joint_offset_sigma_rad: float = field(default=0.0, metadata={
+        'doc': 'simulate an uncalibrated chain: each revolute joint\'s zero off by N(0, this) '
+               '[rad] (e.g. 1e-3); the joint states are the encoder readings; 0 = none',
+        'min': 0.0, 'max': 1.0})
+    link_sigma_m: float = field(default=0.0, metadata={
+        'doc': 'simulate an uncalibrated chain: each joint origin (link lengths, offsets) off '
+               'by N(0, this) per coordinate [m] (e.g. 2e-3; not on a turntable, whose axes '
+               'meet in one point); 0 = none', 'min': 0.0, 'max': 1.0})
     imu_rate_hz: float = field(default=200.0, metadata={
         'doc': 'IMU sample rate [Hz]', 'min': 1.0, 'max': 10000.0})
     joint_rate_hz: float = field(default=100.0, metadata={
@@ -165,6 +174,16 @@ class QuinticProfile:
         return q, dq / h, ddq / (h * h)
 
 
+def _chain_errors_line(chain: dict[str, Any]) -> str:
+    """One line: the arm errors drawn (zero offsets [mrad], largest origin error [mm])."""
+    offs = ', '.join(f'{n} {v * 1e3:+.3f}' for n, v in chain['joint_zero_offsets_rad'].items())
+    link = max((float(np.linalg.norm(v)) for v in chain['joint_origin_errors_m'].values()),
+               default=0.0)
+    return (f'simulating the chain with errors (joint_offset_sigma_rad '
+            f'{chain["joint_offset_sigma_rad"]:g}, link_sigma_m {chain["link_sigma_m"]:g}): '
+            f'joint zero offsets [mrad] {offs}; largest joint-origin error {link * 1e3:.3f} mm')
+
+
 def _segment(t0: float, t1: float, kind: str, label: str) -> Any:
     try:
         from ..core.plans import Segment
@@ -239,9 +258,13 @@ class TurntableSimNode(Node):
         kwargs: dict[str, Any] = dict(imu_rate_hz=cfg.imu_rate_hz,
                                       joint_rate_hz=cfg.joint_rate_hz,
                                       seed=cfg.seed + 7919 * self._chunk_index,
-                                      noise=cfg.noise, start_stamp_ns=start_ns)
+                                      noise=cfg.noise, start_stamp_ns=start_ns,
+                                      joint_offset_sigma_rad=cfg.joint_offset_sigma_rad,
+                                      link_sigma_m=cfg.link_sigma_m)
         if self._true_fixture is not None:  # later chunks: the first chunk's true mounting
-            kwargs.update(mounting_rpy_sigma_rad=0.0, mounting_xyz_sigma_m=0.0)
+            # and chain (arm errors), drawn once
+            kwargs.update(mounting_rpy_sigma_rad=0.0, mounting_xyz_sigma_m=0.0,
+                          joint_offset_sigma_rad=0.0, link_sigma_m=0.0)
         names = {f.name for f in dataclasses.fields(SimConfig)}
         return SimConfig(**{k: v for k, v in kwargs.items() if k in names})
 
@@ -254,6 +277,9 @@ class TurntableSimNode(Node):
         if self._truth_errors is None:
             self._truth_errors = result.truth.errors
             self._true_fixture = result.true_fixture
+            chain = result.truth.extra.get('chain_errors')
+            if chain:
+                self.get_logger().info(_chain_errors_line(chain))
             if self.config.truth_file:
                 truth = result.truth
                 if not self.config.plan:  # the first chunk is a hold, not the run: no
