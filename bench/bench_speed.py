@@ -4,6 +4,7 @@
                                 [--tracemalloc]
     python bench/bench_speed.py --bag [--minutes 60] [--rate 200|2000] [--passes read,1,cli,2]
     python bench/bench_speed.py --reader [--minutes 5]
+    python bench/bench_speed.py --startup [--runs 7]
 
 Simulates the ``demo_short`` plan, closed into a loop, once (nav grade, three-axis fixture)
 and replays it again and again with shifted stamps until ``minutes`` of data have gone through
@@ -36,6 +37,11 @@ Hz, cached in ``/tmp``), written twice: log time = header stamp (``write_bag``),
 rosbag2 records, log time = stamp + 1.5..2.5 ms (12.6 % of the IMU messages behind a newer
 stamp). Prints the CPU time of ``read_bag``, ``iter_bag(bag).batches()`` (what replay reads)
 and ``iter_bag`` sample by sample on each, in messages per second, with the reorder counts.
+
+``--startup`` (issue 14 item 4): ``imu-calib --help`` and ``imu-calib replay --help`` as a user
+runs them, each a new ``python -m imu_calib_ros`` process, ``--runs`` times: the median CPU
+time of the child (user + system, ``resource.RUSAGE_CHILDREN``) and a SUMMARY line against the
+target (< 0.5 s).
 """
 from __future__ import annotations
 
@@ -255,6 +261,31 @@ def bench_bag(a: Any, fx: Any, grade: Any, make_sim: Any) -> None:
               f'samples/s cpu ({n_total * passes / cpu:,.0f} pushed), wall {wall:.1f} s')
 
 
+#: issue 14 item 4: CPU seconds for ``imu-calib --help``
+HELP_TARGET_S = 0.5
+
+
+def bench_startup(runs: int) -> None:
+    """``--startup``: CPU time of ``imu-calib [replay] --help`` in a new process (median)."""
+    import statistics
+    import subprocess
+    import sys
+    for args in (['--help'], ['replay', '--help']):
+        cpu = []
+        for _ in range(runs):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            subprocess.run([sys.executable, '-m', 'imu_calib_ros', *args], check=True,
+                           stdout=subprocess.DEVNULL)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+        med = statistics.median(cpu)
+        what = 'imu-calib ' + ' '.join(args)
+        print(f'--- {what}: cpu {min(cpu):.3f} / {med:.3f} / {max(cpu):.3f} s (min / median / '
+              f'max of {runs} processes)')
+        print(f'SUMMARY {"PASS" if med < HELP_TARGET_S else "FAIL"}: {what} in {med:.3f} s cpu '
+              f'(median; target < {HELP_TARGET_S:g} s)')
+
+
 def reader_bags(minutes: float) -> tuple[Path, Path]:
     """The ordered and the receipt-jitter 2 kHz bags of ``--reader`` (cached in /tmp)."""
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
@@ -331,7 +362,13 @@ def main() -> None:
     ap.add_argument('--reader', action='store_true',
                     help='time the bag reader alone on a 2 kHz bag, log time = stamp and '
                          'rosbag2-like (log time = receipt time); --minutes default 5')
+    ap.add_argument('--startup', action='store_true',
+                    help='time imu-calib --help (and replay --help), each a new process')
+    ap.add_argument('--runs', type=int, default=7, help='with --startup: processes per command')
     a = ap.parse_args()
+    if a.startup:
+        bench_startup(a.runs)
+        return
     if a.reader:
         bench_reader(a.minutes if a.minutes != 60.0 else 5.0)
         return

@@ -149,17 +149,37 @@ def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.
                    ) -> list[StaticWindow]:
     """Windows where every joint stays within ``tol_rad`` for ``min_static_s`` (trimmed by
     :data:`STATIC_TRIM_S` at both ends), with the IMU means over them."""
+    out = []
+    for t0, t1, q_mean in still_spans(t_ns, q, min_static_s, tol_rad)[0]:
+        k0, k1 = np.searchsorted(t_imu_ns, [t0, t1])
+        if k1 - k0 < 10:
+            continue
+        out.append(StaticWindow(t0, t1, q_mean, w[k0:k1].mean(axis=0), f[k0:k1].mean(axis=0),
+                                int(k1 - k0)))
+    return out
+
+
+def still_spans(t_ns: NDArray[np.int64], q: FloatArray, min_static_s: float, tol_rad: float
+                ) -> tuple[list[tuple[int, int, FloatArray]], int]:
+    """The joint side of :func:`static_windows`: ``(t0_ns, t1_ns, mean q)`` of every still
+    span, and the index where the record's last run of still samples starts.
+
+    A span depends only on the samples of its run (between two moving samples), so the spans
+    of the runs before that index stay as they are when samples are appended (what
+    :class:`~.run_ledger.RunLedger` keeps between calls); a span of the last run starts
+    after that sample's stamp, every earlier one before it.
+    """
     if len(t_ns) < 2:
-        return []
+        return [], 0
     moving = np.any(np.abs(np.diff(q, axis=0)) > tol_rad, axis=1)
     mv = np.nonzero(moving)[0]
     starts = np.concatenate([[0], mv + 1])
     stops = np.concatenate([mv, [len(t_ns) - 1]])
     trim = int(STATIC_TRIM_S * 1e9)
+    # the runs shorter than min_static_s (most of them: every moving sample is a run), at once
+    long = (t_ns[stops] - t_ns[starts]) * 1e-9 >= min_static_s
     out = []
-    for a, b in zip(starts, stops):
-        if (t_ns[b] - t_ns[a]) * 1e-9 < min_static_s:
-            continue
+    for a, b in zip(starts[long].tolist(), stops[long].tolist()):
         # the longest stretch within tol of the run's median: a slow creep at either end
         # (a move's tail below tol per sample) is cut instead of losing the window
         near = np.all(np.abs(q[a:b + 1] - np.median(q[a:b + 1], axis=0)) <= tol_rad, axis=1)
@@ -176,12 +196,8 @@ def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.
         qs = q[j0:j1 + 1]
         if np.ptp(qs, axis=0).max() > 2 * tol_rad:
             continue
-        k0, k1 = np.searchsorted(t_imu_ns, [t0, t1])
-        if k1 - k0 < 10:
-            continue
-        out.append(StaticWindow(t0, t1, qs.mean(axis=0), w[k0:k1].mean(axis=0),
-                                f[k0:k1].mean(axis=0), int(k1 - k0)))
-    return out
+        out.append((t0, t1, qs.mean(axis=0)))
+    return out, int(starts[-1])
 
 
 def white_noise_density(x: FloatArray, dt_s: float) -> float:

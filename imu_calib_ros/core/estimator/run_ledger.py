@@ -8,7 +8,7 @@ a verdict. What it keeps, in bounded memory:
   0.1 s bins of the raw sums (for the stationary-window means: ~70 bytes per second of data);
 - the joint record thinned to one sample per 20 ms (fixture order, unwrapped), from which the
   stationary windows are found at the end (:func:`.coarse.static_windows`, the coarse start's
-  rule);
+  rule; the spans of the runs that ended are kept between calls, :func:`.coarse.still_spans`);
 The gate counts of every filter of the run come from the estimator
 (``CalibrationEstimator.nis_totals()``; checked against ``counters['chunks']``: exactly one
 velocity update per chunk), the assumed noise from ``assumed_noise()`` and the reported
@@ -28,7 +28,7 @@ from ..input_guard import IMU_REASONS
 from ..rotation import skew
 from ..types import ImuBatch, JointBatch, JointSample
 from . import error_model as em
-from .coarse import pair_walk, static_windows
+from .coarse import pair_walk, still_spans
 from .estimator import RAW_PRIOR
 from .selfcheck import (NisTotals, RunEvidence, SelfCheckConfig, Verdict, WindowStatistics,
                         judge, window_statistics)
@@ -77,9 +77,14 @@ class RunLedger:
     def _reset_windows(self) -> None:
         self._origin: int | None = None
         self._bins = np.zeros((0, 7))  # count, gyro sum (3), accel sum (3)
-        self._jt: list[int] = []
-        self._jq: list[FloatArray] = []
+        # the kept joint record: the first _jn rows of _jt_buf (stamps) and _jq_buf (unwrapped)
+        self._jt_buf = np.zeros(0, np.int64)
+        self._jq_buf = np.zeros((0, self.est.fixture.n_joints))
+        self._jn = 0
         self._jlast: FloatArray | None = None
+        # still spans of the runs that ended before sample _span_from (they no longer change)
+        self._spans: list[tuple[int, int, FloatArray]] = []
+        self._span_from = 0
 
     # ------------------------------------------------------------------ input side
     def imu(self, batch: ImuBatch) -> None:
@@ -136,20 +141,58 @@ class RunLedger:
         except ValueError:
             return
         q = q[:, idx]
-        for ti, qi in zip(t.tolist(), q):
-            if not np.all(np.isfinite(qi)):
+        finite = np.all(np.isfinite(q), axis=1).tolist()
+        # thinned in stamp order (a loop over Python ints: which sample is kept depends on
+        # the last kept one); a jump back starts a new record
+        last = int(self._jt_buf[self._jn - 1]) if self._jn else None
+        kept: list[int] = []
+        for i, ti in enumerate(t.tolist()):
+            if not finite[i]:
                 continue
-            if self._jt and ti < self._jt[-1] + JOINT_KEEP_NS:
-                if ti < self._jt[-1] - JUMP_BACK_NS:
+            if last is not None and ti < last + JOINT_KEEP_NS:
+                if ti < last - JUMP_BACK_NS:
+                    self._keep_joints(t[kept], q[kept])
                     self._reset_windows()
+                    kept = []
                 else:
                     continue
-            last = self._jlast
-            if last is not None:  # unwrap against the previous kept sample
-                qi = qi + 2 * np.pi * np.round((last - qi) / (2 * np.pi))
-            self._jlast = qi
-            self._jt.append(ti)
-            self._jq.append(qi)
+            kept.append(i)
+            last = ti
+        self._keep_joints(t[kept], q[kept])
+
+    def _keep_joints(self, t: NDArray[np.int64], q: FloatArray) -> None:
+        """Append kept joint samples, each unwrapped against the previous kept one:
+        ``q_k + 2 pi round((q'_{k-1} - q_k) / 2 pi)``, sample by sample. Computed at once
+        (the whole turns as a cumulative sum) and checked sample by sample against that rule
+        with the result's own previous rows: where every check holds, the result is the
+        sequential one bit for bit (by induction); else the sequential loop."""
+        if not len(t):
+            return
+        two_pi = 2 * np.pi
+        last = self._jlast
+        cur = q[1:] if last is None else q  # the rows unwrapped against a previous one
+        prev_raw = q[:-1] if last is None else np.vstack([last[None], q[:-1]])
+        turns = np.cumsum(np.round((prev_raw - cur) / two_pi), axis=0)
+        out = q.copy()
+        out[len(q) - len(cur):] = cur + two_pi * turns
+        prev = out[:-1] if last is None else np.vstack([last[None], out[:-1]])
+        if not np.array_equal(np.round((prev - cur) / two_pi), turns):
+            for k, qi in enumerate(q):
+                if last is not None:
+                    qi = qi + two_pi * np.round((last - qi) / two_pi)
+                out[k] = last = qi
+        n = self._jn + len(t)
+        if n > len(self._jt_buf):  # grown by doubling (the fixture's joints: fixed columns)
+            cap = max(n, 2 * len(self._jt_buf), 1024)
+            jt = np.zeros(cap, np.int64)
+            jq = np.zeros((cap, q.shape[1]))
+            jt[:self._jn] = self._jt_buf[:self._jn]
+            jq[:self._jn] = self._jq_buf[:self._jn]
+            self._jt_buf, self._jq_buf = jt, jq
+        self._jt_buf[self._jn:n] = t
+        self._jq_buf[self._jn:n] = out
+        self._jn = n
+        self._jlast = out[-1].copy()
 
     def _close_segment(self) -> None:
         if self._t_first is not None and self._t_last is not None and self._dt_ns > 0:
@@ -222,7 +265,7 @@ class RunLedger:
     # ------------------------------------------------------------------ stationary windows
     def windows(self) -> list[tuple[int, int, FloatArray, FloatArray, FloatArray, int]]:
         """Stationary windows ``(t0_ns, t1_ns, q, gyro mean, accel mean, samples)``."""
-        if len(self._jt) < 2 or self._origin is None:
+        if self._jn < 2 or self._origin is None:
             return []
         cnt = self._bins[:, 0]
         k = np.nonzero(cnt > 0)[0]
@@ -230,25 +273,38 @@ class RunLedger:
             return []
         t_bin = self._origin + k * BIN_NS + BIN_NS // 2
         sums = self._bins[k]
-        tj = np.array(self._jt, np.int64)
-        qj = np.array(self._jq)
-        tol = float(self.est.config.stationary_joint_tolerance_rad)
-        found = static_windows(tj, qj, t_bin, sums[:, 1:4] / sums[:, :1],
-                               sums[:, 4:7] / sums[:, :1], MIN_WINDOW_S, tol)
         out = []
-        for win in found:
+        for t0, t1, q_win in self._still_spans():
+            # the coarse rule's IMU check (coarse.static_windows: 10 bins in the window)
+            k0, k1 = np.searchsorted(t_bin, [t0, t1])
+            if k1 - k0 < 10:
+                continue
             # whole bins inside the window (the coarse rule already trimmed 0.3 s)
-            b0 = int(np.searchsorted(t_bin, win.t0_ns + BIN_NS // 2))
-            b1 = int(np.searchsorted(t_bin, win.t1_ns - BIN_NS // 2, side='right'))
+            b0 = int(np.searchsorted(t_bin, t0 + BIN_NS // 2))
+            b1 = int(np.searchsorted(t_bin, t1 - BIN_NS // 2, side='right'))
             s = sums[b0:b1].sum(axis=0)
             if s[0] < 10:
                 continue
-            out.append((win.t0_ns, win.t1_ns, win.q_rad, s[1:4] / s[0], s[4:7] / s[0],
-                        int(s[0])))
+            out.append((t0, t1, q_win, s[1:4] / s[0], s[4:7] / s[0], int(s[0])))
         if len(out) > MAX_WINDOWS:
             keep = sorted(sorted(range(len(out)), key=lambda i: -out[i][5])[:MAX_WINDOWS])
             out = [out[i] for i in keep]
         return out
+
+    def _still_spans(self) -> list[tuple[int, int, FloatArray]]:
+        """:func:`.coarse.still_spans` of the joint record: those of the runs that ended are
+        kept (they depend on their own samples only), the rest is scanned again."""
+        a = self._span_from
+        tj = self._jt_buf[a:self._jn]
+        tol = float(self.est.config.stationary_joint_tolerance_rad)
+        spans, last_run = still_spans(tj, self._jq_buf[a:self._jn], MIN_WINDOW_S, tol)
+        if len(tj) < 2:
+            return self._spans + spans
+        t_open = int(tj[last_run])
+        closed = [x for x in spans if x[0] < t_open]
+        self._spans.extend(closed)
+        self._span_from = a + last_run
+        return self._spans + spans[len(closed):]
 
     def bias_walk(self) -> tuple[float, float, int]:
         """The biases' random walk the stationary windows show (item 5, during the run):

@@ -72,7 +72,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import eigh
+from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import binom, chi2, norm
 
 from .measurements import MEASUREMENT_DOF
@@ -316,41 +316,68 @@ def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: 
     K = resid.shape[0]
     m = jac.shape[2]
     n = 6 * K
-    s = sigma.reshape(n)
-    r = resid.reshape(n) / s
-    J = jac.reshape(n, m) / s[:, None]
-    W = np.zeros((n, n))
-    for c in range(6):  # component c of every window
-        W[c::6, c::6] = walk_cov[:, :, c]
-    W /= np.outer(s, s)
-    A = nuisance.reshape(n, -1) / s[:, None]
-    U, sv, _ = np.linalg.svd(A, full_matrices=True)
+    # rows ordered by component (all windows' component 0, then 1, ...): the window noise
+    # N = I + W is then block diagonal, one K x K block per component (the walk of one
+    # component is independent of the others'); the statistics do not depend on the order
+    s = np.ascontiguousarray(sigma.T).reshape(n)
+    r = np.ascontiguousarray(resid.T).reshape(n) / s
+    # the states in units of their sigmas (x = D u, P = D Pu D): the same figures, but the
+    # products and the eigenproblem below of order one (P's own scales span decades)
+    sd = np.sqrt(np.clip(np.diag(P), 1e-300, None))
+    Pu = P / np.outer(sd, sd)
+    J = jac.transpose(1, 0, 2).reshape(n, m) * (sd[None, :] / s[:, None])
+    A = nuisance.transpose(1, 0, 2).reshape(n, -1) / s[:, None]
+    # orthonormal basis of what the nuisance produces (the rest, Z, is what it cannot)
+    U, sv, _ = np.linalg.svd(A, full_matrices=False)
     rank_a = int(np.sum(sv > sv.max() * max(A.shape) * np.finfo(float).eps)) if sv.size else 0
-    Z = U[:, rank_a:]  # orthonormal basis of the residuals the nuisance cannot produce
-    rz = Z.T @ r
-    Jz = Z.T @ J
-    Nz = Z.T @ (np.eye(n) + W) @ Z
-    Bz = Jz @ P @ Jz.T
-    C = Nz + Bz
-    L = np.linalg.cholesky(0.5 * (C + C.T))
-    u = np.linalg.solve(L, rz)
-    stat = float(u @ u)
-    dof = int(Z.shape[1])
+    Qa = U[:, :rank_a]
+    # N^-1 [r J Qa] by the Cholesky factors of the six blocks; r and J first without their
+    # part in range(A) (G below ignores it: the same figures, but without the rounding of a
+    # large nuisance part that would cancel in G)
+    RJ = np.column_stack([r, J])
+    RJ -= Qa @ (Qa.T @ RJ)
+    X = np.column_stack([RJ, Qa])
+    NiX = np.empty_like(X)
+    for c in range(6):
+        rows = slice(c * K, (c + 1) * K)
+        sc = s[rows]
+        Nc = np.eye(K) + walk_cov[:, :, c] / np.outer(sc, sc)
+        NiX[rows] = cho_solve(cho_factor(Nc, lower=True), X[rows])
+    # with Z an orthonormal basis of the complement of range(A) and G = Z (Z^T N Z)^-1 Z^T
+    # = N^-1 - N^-1 Qa (Qa^T N^-1 Qa)^-1 Qa^T N^-1, every figure is a product of
+    # [r J]^T G [r J]: the (n - rank) x (n - rank) matrices of the definition are not formed
+    X1, Ni1, NiQ = X[:, :m + 1], NiX[:, :m + 1], NiX[:, m + 1:]
+    M = X1.T @ Ni1
+    if rank_a:
+        QNQ = Qa.T @ NiQ
+        F = Qa.T @ Ni1
+        M = M - F.T @ cho_solve(cho_factor(0.5 * (QNQ + QNQ.T)), F)
+    M = 0.5 * (M + M.T)
+    rGr, JGr, JGJ = float(M[0, 0]), M[1:, 0], M[1:, 1:]
+    dof = n - rank_a
+    # Pu = R R^T; the pencil (Jz P Jz^T, Nz) has the nonzero eigenvalues of
+    # H = R^T Jz^T Nz^-1 Jz R = R^T (J^T G J) R, with the Nz-normalised eigenvectors
+    # v = Nz^-1 Jz R e / sqrt(lambda) (e: H's unit eigenvectors)
+    d, E = np.linalg.eigh(0.5 * (Pu + Pu.T))
+    R = E * np.sqrt(np.clip(d, 0.0, None))
+    H = R.T @ JGJ @ R
+    lam, Ev = np.linalg.eigh(0.5 * (H + H.T))
+    g = Ev.T @ (R.T @ JGr)  # e^T R^T J^T G r
+    # chi2 = rz^T (Nz + Jz P Jz^T)^-1 rz (Woodbury)
+    stat = rGr - float(np.sum(g * g / (1.0 + lam)))
     # directions of the calibration covariance: B v = lambda N v, y = v^T r / sqrt(1 + lambda)
     # only where the calibration's share is at least the window noise's (lambda >= 1): the
     # noise-dominated directions test the noise model, not the calibration (and their
     # eigenvectors are ill-determined at lambda ~ 0)
-    lam, V = eigh(0.5 * (Bz + Bz.T), 0.5 * (Nz + Nz.T))
     keep = lam >= MIN_CALIBRATION_SHARE
     worst, where, n_dir = 0.0, '', int(keep.sum())
     if n_dir:
-        lam_k, V_k = lam[keep], V[:, keep]
-        y = (V_k.T @ rz) / np.sqrt(1.0 + lam_k)
+        lam_k = lam[keep]
+        y = g[keep] / np.sqrt(lam_k * (1.0 + lam_k))
         j = int(np.argmax(np.abs(y)))
         worst = float(abs(y[j]))
-        # the state this direction loads on most, in units of its sigma
-        sd = np.sqrt(np.clip(np.diag(P), 1e-300, None))
-        load = (P @ (Jz.T @ V_k[:, j])) / sd
+        # the state this direction loads on most, in units of its sigma: P Jz^T v / sd
+        load = (Pu @ (JGJ @ (R @ Ev[:, keep][:, j]))) / np.sqrt(lam_k[j])
         where = labels[int(np.argmax(np.abs(load)))] if labels else str(int(np.argmax(
             np.abs(load))))
     return WindowStatistics(K, stat, dof, worst, where, n_dir)
