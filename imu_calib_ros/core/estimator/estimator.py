@@ -66,7 +66,7 @@ from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_
                     white_noise_densities, white_noise_from_window)
 from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_correction, prior_point,
                      prior_shift, prior_sigmas, prior_vector)
-from .propagation import propagate_block
+from .propagation import omega_dot_half_span, propagate_block
 from .result import (CONTRACT_KEYS, Estimate, calibration_result, estimator_extra,
                      parameter_covariance, snapshot_extra, values_of, with_values)
 
@@ -147,7 +147,8 @@ class CalibrationEstimator:
         self._filter: ErrorStateFilter | None = None
         self._imu = ImuBuffer()
         self._joints = JointBuffer(self.counters)
-        self._prev: tuple[int, FloatArray, FloatArray] | None = None  # last raw sample used
+        self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
+        self._half_span = 1  # samples each side of an omega_dot difference (propagation)
         self._nominal_dt = 0.0
         self._n = 1  # samples per chunk
         self._t0_ns: int | None = None
@@ -460,10 +461,11 @@ class CalibrationEstimator:
                 return
         t, w, f = self._imu.take()
         n = self._n
-        need = n + 1  # one sample of look-ahead for the central differences
+        h = self._half_span  # look-ahead for the rate differences (propagation)
+        need = n + h
         if len(t) < need:
             return
-        n_chunks = (len(t) - 1) // n
+        n_chunks = (len(t) - h) // n
         if (self.attitude_aiding or not self.fixture.concurrent) and not final \
                 and len(self._joints):
             # wait for joint states beyond a chunk end (unless they stopped coming)
@@ -484,7 +486,7 @@ class CalibrationEstimator:
                 break
             k1 = k0 + b * n
             try:
-                self._run_block(t[k0:k1 + 1], w[k0:k1 + 1], f[k0:k1 + 1], b)
+                self._run_block(t[k0:k1 + h], w[k0:k1 + h], f[k0:k1 + h], b)
             except sm.ImplausibleErrors as exc:
                 # the working point left what a sensor can be (a poor start, a wrong input):
                 # a divergence of the filter, not a crash of the run
@@ -553,7 +555,8 @@ class CalibrationEstimator:
         if blk.n_gaps:  # motion during a gap is lost: widen the navigation uncertainty
             widen_for_gaps(filt.P, lay, blk.n_gaps)
         self._feedback()
-        self._prev = (int(t[m - 1]), w[m - 1], f[m - 1])
+        h = self._half_span
+        self._prev = (t[m - h:m].copy(), w[m - h:m].copy(), f[m - h:m].copy())
         self._t_last_ns = int(t[m - 1])
         self.counters['imu_processed'] += m
         self.counters['chunks'] += B
@@ -718,6 +721,7 @@ class CalibrationEstimator:
             return False
         self._nominal_dt = al.nominal_dt_s
         self._n = al.samples_per_chunk
+        self._half_span = min(omega_dot_half_span(self._nominal_dt), self._n)
         if cfg.noise_source == 'data' and self.start is None:
             self._process_noise.white = white_noise_from_window(al.gyro_rad_s, al.accel_m_s2,
                                                                 al.nominal_dt_s)

@@ -1,6 +1,7 @@
 """One block of IMU samples through the navigator: compensation, strapdown, transition rows.
 
-A block is ``B`` chunks of ``n`` samples (plus one sample of look-ahead). Per block, all
+A block is ``B`` chunks of ``n`` samples (plus ``h`` samples of look-ahead, one at 200 Hz and
+below, :func:`omega_dot_half_span`). Per block, all
 vectorised:
 
 1. intervals from the stamps; a gap (> 1.5 nominal periods) counts as one nominal period
@@ -44,8 +45,37 @@ class Block:
     n_gaps: int  # intervals longer than 1.5 nominal periods
 
 
+#: half-width of the rate differences that give omega_dot for the size effect: the mean
+#: rates of the ``h`` samples after an interval minus those of the ``h`` before it, ``h`` =
+#: this span over the sample period (at least 1: at 200 Hz and below, neighbours). A
+#: neighbour difference at 1 kHz has 1.1 rad/s^2 of noise on an industrial MEMS gyro, as
+#: much as the table's angular accelerations: the size effect's regressor then drowns (its
+#: z offsets 5 sigma off, the accelerometers 30 % noisier); over +-5 ms it is 0.17 rad/s^2.
+OMEGA_DOT_SPAN_S = 0.005
+
+
+def omega_dot_half_span(nominal_dt_s: float) -> int:
+    """``h``: samples on each side of an interval for its omega_dot (:data:`OMEGA_DOT_SPAN_S`);
+    also the look-ahead and the history a block needs."""
+    return max(1, int(round(OMEGA_DOT_SPAN_S / nominal_dt_s))) if nominal_dt_s > 0 else 1
+
+
+def _wide_differences(ww: FloatArray, ff: FloatArray, dt_all: FloatArray, h: int, m: int
+                      ) -> tuple[FloatArray, FloatArray]:
+    """``(mean of the h rows after - mean of the h rows before) / (their centroid times'
+    difference)`` for the ``m`` block rows ``h .. h + m - 1`` of ``ww`` and ``ff``."""
+    tau = np.concatenate([[0.0], np.cumsum(dt_all)])  # time of every row
+    r = h + np.arange(m)
+    out = []
+    for x in (ww, ff, tau[:, None]):
+        c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+        out.append(((c[r + h + 1] - c[r + 1]) - (c[r] - c[r - h])) / h)
+    span = out[2]
+    return out[0] / span, out[1] / span
+
+
 def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
-                    prev: tuple[int, FloatArray, FloatArray] | None, t: IntArray,
+                    prev: tuple[Any, FloatArray, FloatArray] | None, t: IntArray,
                     w: FloatArray, f: FloatArray, nominal_dt_s: float, B: int, n: int,
                     layout: StateLayout, omega_ie_enu_rad_s: FloatArray) -> Block:
     """Propagate ``nav`` (in place) over ``B`` chunks of ``n`` samples.
@@ -59,39 +89,48 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     time_offset_s :
         Accelerometer-minus-gyro time offset estimate (0 when not a state).
     prev :
-        ``(stamp, raw gyro, raw accel)`` of the sample before ``t[0]``, or None at the first
-        block after an alignment (then one nominal period before ``t[0]``).
-    t, w, f : (B n + 1,), (B n + 1, 3), (B n + 1, 3)
-        Stamps [ns], raw mean rates and specific forces; the last sample is the look-ahead.
+        ``(stamps, raw gyro, raw accel)`` of the ``h`` samples before ``t[0]``
+        (:func:`omega_dot_half_span`), or None at the first block after an alignment (then
+        copies of the first sample, a nominal period apart).
+    t, w, f : (B n + h,), (B n + h, 3), (B n + h, 3)
+        Stamps [ns], raw mean rates and specific forces; the last ``h`` samples are the
+        look-ahead.
     nominal_dt_s, B, n, layout, omega_ie_enu_rad_s :
         Sample period, chunks, samples per chunk, state layout, earth rate (ENU).
     """
     m = B * n
     nom = nominal_dt_s
+    h = len(t) - m  # look-ahead samples = history samples (omega_dot_half_span)
     # intervals; a gap (> 1.5 nominal periods) is a sample of one nominal period
     if prev is None:
-        t_prev, w_prev, f_prev = int(t[0]) - int(round(nom * 1e9)), w[0], f[0]
+        step = int(round(nom * 1e9))
+        t_prev = int(t[0]) - step * np.arange(h, 0, -1, dtype=np.int64)
+        w_prev, f_prev = np.repeat(w[:1], h, axis=0), np.repeat(f[:1], h, axis=0)
     else:
         t_prev, w_prev, f_prev = prev
-    tt = np.concatenate([[t_prev], t]).astype(np.int64)
-    dt_all = np.diff(tt) * 1e-9  # (m + 1,)
+    tt = np.concatenate([np.atleast_1d(t_prev), t]).astype(np.int64)
+    dt_all = np.diff(tt) * 1e-9  # (m + 2 h - 1,)
     gap = dt_all > 1.5 * nom
-    n_gaps = int(gap[:m].sum())
+    n_gaps = int(gap[h - 1:h - 1 + m].sum())
     dt_all = np.where(gap, nom, dt_all)
-    ww = np.vstack([w_prev, w])  # (m + 2, 3): previous, block, look-ahead
-    ff = np.vstack([f_prev, f])
-    # central differences of mean rates: omega_dot at the interval (Kozlov eq. 1 term)
-    den = (dt_all[:-1] + dt_all[1:])[:, None]
+    ww = np.vstack([np.reshape(w_prev, (-1, 3)), w])  # (m + 2 h, 3): history, block, ahead
+    ff = np.vstack([np.reshape(f_prev, (-1, 3)), f])
     # of the compensated rates: with raw ones, a raw unit's 0.5 % scale error made the
     # size effect 1 % (6 sigma) wrong (issue 11); the gyro part needs no omega_dot
     ww = sm.compensate(errors, ww, ff, np.zeros_like(ww))[0]
-    wd = (ww[2:] - ww[:-2]) / den  # (m, 3)
-    fd = (ff[2:] - ff[:-2]) / den
-    wd_all = np.vstack([wd, wd[-1:]])  # look-ahead: reuse
+    # omega_dot at each interval (Kozlov eq. 1 term): central differences of mean rates
+    if h == 1:
+        den = (dt_all[:-1] + dt_all[1:])[:, None]
+        wd = (ww[2:] - ww[:-2]) / den  # (m, 3)
+        fd = (ff[2:] - ff[:-2]) / den
+    else:
+        wd, fd = _wide_differences(ww, ff, dt_all, h, m)
+    wd_all = np.vstack([wd, wd[-1:]])  # the first look-ahead sample: reuse
+    w, f = w[:m + 1], f[:m + 1]
     w_c, f_c = sm.compensate(errors, w, f, wd_all)
     if time_offset_s != 0.0:
         f_c = f_c - time_offset_s * np.vstack([fd, fd[-1:]])
-    dt = dt_all[:m]
+    dt = dt_all[h - 1:h - 1 + m]
     if n_gaps:
         nav.reset_memory()
     R_start = nav.R_enu_imu
