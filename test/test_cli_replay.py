@@ -60,6 +60,7 @@ def test_topics_without_leading_slash_find_the_bag_topics(bag: Path) -> None:
     (['--fixture', 'no_such_fixture'], 'no_such_fixture'),
     (['--fixture', 'three_axis', '--imu-topic', '/nope'], '/nope'),
     (['--fixture', 'three_axis', '--iterations', '0'], 'iterations'),
+    (['--fixture', 'three_axis', '--max-passes', '0'], 'max-passes'),
     (['--fixture', 'three_axis', '--method', 'oscillation'], 'oscillation'),
 ])
 def test_bad_arguments_one_line_no_output(bag: Path, capsys, args, words) -> None:
