@@ -297,6 +297,7 @@ def _rate_nominal(fixture: Fixture, spline: CubicSpline, t_s: FloatArray, tol_ra
 
 
 LATENCY_WINDOW_S = 0.04  # rates compared as means over this many seconds (see below)
+LATENCY_ROUNDS = 6  # most rounds of the gyro fit and refine_latency at its latency
 
 
 def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
@@ -573,12 +574,32 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # asymmetry do to them, 1.7 +- 1.6 ms off on a tactical unit turned at 60 deg/s), and
     # the gyros once more at the refined latency
     block = ((t_mid - t_mid[0]) // BLOCK_S).astype(np.intp)
+    # the fixed point of "fit the gyros at s, refine s through that fit": a fit at a latency
+    # far off (14 ms on a plan of quick 90 deg moves) is itself distorted, and one refinement
+    # goes only part of the way (to 4.4 ms; each further round removes ~60 %), so the fixed
+    # point is found by the secant method on g(s) = F(s) - s
+    def F(x: float) -> tuple[float, float]:
+        B_, fits_ = _fit_gyros(fixture, spline, t_mid + x, wi, fi, block, noise_g, dt, tol_rad)
+        return refine_latency(fixture, spline, ts, w, f, dt, mv, x, _gyro_model(B_, fits_))
+
+    x0, g0 = s, 0.0
+    x1 = s
+    r, r_sig = F(x1)
+    if math.isfinite(r_sig) and abs(r) < MAX_LATENCY_S:
+        for k in range(LATENCY_ROUNDS):
+            g1 = r - x1
+            if abs(g1) < max(0.1 * r_sig, 1e-6):
+                break
+            # the first step is the plain fixed-point one, then secant steps
+            x2 = r if k == 0 or g1 == g0 else x1 - g1 * (x1 - x0) / (g1 - g0)
+            x2 = float(np.clip(x2, -MAX_LATENCY_S, MAX_LATENCY_S))
+            r2, r2_sig = F(x2)
+            if not (math.isfinite(r2_sig) and abs(r2) < MAX_LATENCY_S):
+                break
+            x0, g0 = x1, g1
+            x1, r, r_sig = x2, r2, r2_sig
+        s, s_sig = r, r_sig
     B, fits = _fit_gyros(fixture, spline, t_mid + s, wi, fi, block, noise_g, dt, tol_rad)
-    model = _gyro_model(B, fits)
-    s_ref, s_ref_sig = refine_latency(fixture, spline, ts, w, f, dt, mv, s, model)
-    if s_ref_sig < s_sig and abs(s_ref - s) < MAX_LATENCY_S:
-        s, s_sig = s_ref, s_ref_sig
-        B, fits = _fit_gyros(fixture, spline, t_mid + s, wi, fi, block, noise_g, dt, tol_rad)
     latency = s  # joint stamp = instant + latency
     _, w_nom, _ = _rate_nominal(fixture, spline, t_mid + latency, tol_rad)
     theta_g = np.zeros(em.N_GYRO)
