@@ -342,7 +342,7 @@ FIXTURES = ('savage_2axis', 'three_axis')
 FAST_CASES = {'static_6pos': 'savage_2axis', 'savage_srt': 'savage_2axis',
               'kozlov_oscillation': 'three_axis', 'rotation_modulation': 'three_axis',
               'random_moves': 'savage_2axis', 'demo_short': 'three_axis',
-              'gyro_bias_6pos': 'three_axis'}
+              'gyro_bias_6pos': 'three_axis', 'six_position_turns': 'three_axis'}
 SLOW_PLANS = ('srt_then_kozlov', 'srt_kozlov_bias', 'arm6_excitation')
 
 
