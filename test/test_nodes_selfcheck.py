@@ -72,7 +72,12 @@ def run_and_save(ros: Node, tmp: Path, force: bool) -> tuple[Any, str, int | Non
     cal = start_node('calibration', {'fixture': str(wrong_fixture(tmp)), 'use_sim_time': True,
                                      'output_file': str(out), 'save_on_shutdown': True,
                                      'force_save': force, 'diagnostics_rate_hz': 2.0,
-                                     'estimator.bootstrap_min_s': 1000.0}, tmp)
+                                     'estimator.bootstrap_min_s': 1000.0,
+                                     # every sample, even on a loaded machine: the 2 deg
+                                     # tilt shows at chi2/dof 3.5-3.7 against 2.62 on the
+                                     # whole record, and a 3 % best-effort loss once let the
+                                     # run pass (CI, fresh clone)
+                                     'queue_depth': 20000}, tmp)
     sim = start_node('turntable_sim', {'plan': str(plan), 'speed': 2.0,
                                        'wait_for_subscribers': 1, 'start_stamp_s': 5000.0}, tmp)
     diags: list[Any] = []
