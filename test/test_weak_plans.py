@@ -43,6 +43,7 @@ def test_a_three_pose_plan_is_iterated_then_refused_naming_the_plan(
     err = capsys.readouterr().err
     assert rc == 3 and not out.exists(), err
     assert 'the plan has 3 stationary poses and turns about fewer than three IMU axes' in err
+    assert 'record a plan such as six_position_turns or savage_srt' in err  # both run here
     rc = main(['replay', str(bag), '--fixture', str(truth.fixture_path), '--output',
                str(out), '--quiet', '--force'])
     capsys.readouterr()
@@ -57,6 +58,63 @@ def test_a_plan_that_determines_the_start_runs_one_pass(
     assert main(['replay', str(bag), '--fixture', str(truth.fixture_path), '--output',
                  str(out), '--quiet']) == 0, capsys.readouterr().err
     assert 'passes' not in yaml.safe_load(out.read_text())['imu_calibration']['estimator']
+
+
+ONE_AXIS = """site: {latitude_deg: 48.1, height_m: 520.0}
+joints:
+  - {name: table, axis: [0.0, 0.0, 1.0]}
+imu: {rpy_deg: [0.0, 0.0, 0.0], xyz_m: [0.0, 0.0, 0.0]}
+"""
+
+RATE_TABLE = """name: rate_table
+steps:
+  - dwell: {duration_s: 30}
+  - move: {joint: table, by_deg: 90, duration_s: 3}
+  - dwell: {duration_s: 30}
+  - move: {joint: table, by_deg: 90, duration_s: 3}
+  - dwell: {duration_s: 30}
+  - spin: {joint: table, rate_deg_s: 60, duration_s: 12}
+  - dwell: {duration_s: 20}
+  - spin: {joint: table, rate_deg_s: -60, duration_s: 12}
+  - dwell: {duration_s: 20}
+"""
+
+
+def test_a_one_axis_rate_table_is_refused_saying_no_plan_on_it_can_do(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A raw unit on a one-axis rate table: the table axis in the IMU frame, the mounting
+    tilt and the gyro misalignments are one combination, and the horizontal accelerometers
+    never see gravity (forced, the accelerometer scales came out 50 % off and gyro z's scale
+    289 sigma off). The refusal must not send the user to a plan this table cannot run."""
+    fx = tmp_path / 'one_axis.yaml'
+    fx.write_text(ONE_AXIS)
+    plan = tmp_path / 'rate_table.yaml'
+    plan.write_text(RATE_TABLE)
+    bag, truth = make_case(tmp_path, unit='tactical', size=1.0, mount_deg=2.0,
+                           plan=str(plan), imu_rate_hz=100.0, seed=3, fixture=str(fx))
+    out = tmp_path / 'c.yaml'
+    rc = main(['replay', str(bag), '--fixture', str(fx), '--output', str(out), '--quiet'])
+    err = capsys.readouterr().err
+    assert rc == 3 and not out.exists(), err
+    assert 'this fixture turns the IMU about one axis only, so no plan on it can' in err, err
+    assert 'six_position_turns' not in err
+
+
+@pytest.mark.parametrize('fixture,axes', [('one', 1), ('savage_2axis', 3), ('three_axis', 3),
+                                          ('arm6', 3)])
+def test_fixture_turn_axes_counts_the_imu_axes_a_fixture_can_turn_about(
+        tmp_path: Path, fixture: str, axes: int) -> None:
+    from imu_calib_ros.cli.replay import fixture_turn_axes
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.testing.world_sim import fixture_path
+    if fixture == 'one':
+        path = tmp_path / 'f.yaml'
+        path.write_text(ONE_AXIS)
+    elif fixture == 'arm6':
+        path = fixture_path('three_axis').parent / 'arm6.urdf'
+    else:
+        path = fixture_path(fixture)
+    assert fixture_turn_axes(load_fixture(str(path))) == axes
 
 
 def test_raw_unit_ratio_weighs_an_estimate_by_its_own_sigma() -> None:

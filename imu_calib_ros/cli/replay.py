@@ -148,11 +148,11 @@ def _joints_the_fixture_lacks(args: Any, fixture: Any) -> str:
 WEAK_PLAN_POSES = 6
 
 
-def _weak_plan_hint(run_: Any) -> str:
+def _weak_plan_hint(run_: Any, fixture: Any) -> str:
     """A clause naming what the recorded plan lacks when it is weak (fewer than
     :data:`WEAK_PLAN_POSES` distinct stationary poses over the run, or turns about fewer than
     three IMU axes in what the coarse start saw), for a refusal whose cause is then the plan
-    rather than the unit; ``''`` otherwise."""
+    rather than the unit, and what to record instead on this fixture; ``''`` otherwise."""
     import numpy as np
     lacks = []
     wins = run_.ledger.windows()
@@ -168,7 +168,63 @@ def _weak_plan_hint(run_: Any) -> str:
     if not lacks:
         return ''
     return (f' (the plan has {" and ".join(lacks)}: too little to determine an uncalibrated '
-            'unit\'s errors; record a plan such as six_position_turns or savage_srt)')
+            f'unit\'s errors; {_what_to_record(fixture)})')
+
+
+#: shipped plans that determine a raw unit, in the order the hint suggests them
+RAW_UNIT_PLANS = ('six_position_turns', 'savage_srt')
+
+
+def fixture_turn_axes(fixture: Any, configurations: int = 8) -> int:
+    """How many independent IMU axes the fixture's joints can turn the IMU about, over
+    ``configurations`` random poses: the rank of the IMU-frame angular rates of unit joint
+    rates (finite differences of ``R_enu_imu``). A one-axis rate table gives 1 whatever the
+    plan; a two-axis table 3 (its outer axis moves in the IMU frame with the inner one)."""
+    import numpy as np
+    from ..core.rotation import unskew
+    rng = np.random.default_rng(0)
+    lo = np.array([-np.pi if j.lower is None else j.lower for j in fixture.joints])
+    hi = np.array([np.pi if j.upper is None else j.upper for j in fixture.joints])
+    rates = []
+    h = 1e-6
+    for _ in range(configurations):
+        q = rng.uniform(lo, hi)
+        R = fixture.R_enu_imu(q)
+        for j, joint in enumerate(fixture.joints):
+            if joint.kind == 'prismatic':
+                continue
+            dq = np.zeros(len(q))
+            dq[j] = h
+            dR = (fixture.R_enu_imu(q + dq) - fixture.R_enu_imu(q - dq)) / (2 * h)
+            rates.append(unskew(R.T @ dR))
+    if not rates:
+        return 0
+    s = np.linalg.svd(np.array(rates), compute_uv=False)
+    return int(np.sum(s > 1e-3 * s[0]))
+
+
+def _what_to_record(fixture: Any) -> str:
+    """What to record instead: the shipped plans of :data:`RAW_UNIT_PLANS` that run on
+    ``fixture``, or why none can (a fixture that cannot turn the IMU about three axes)."""
+    from ..core.plans import build_profile, load_plan
+    n = fixture_turn_axes(fixture)
+    if n < 3:
+        return (f'this fixture turns the IMU about {"one axis" if n == 1 else f"{n} axes"} '
+                'only, so no plan on it can: calibrate on a two- or three-axis fixture')
+    if not fixture.concurrent:  # a robot arm: its axes do not meet in one point
+        return ('record the excitation plan generated for this chain '
+                '(core.chain_plans.excitation_plan, docs/NODES.md)')
+    ok = []
+    for name in RAW_UNIT_PLANS:
+        try:
+            build_profile(load_plan(name), fixture)
+        except Exception:  # noqa: BLE001 - any reason the plan does not run here
+            continue
+        ok.append(name)
+    if ok:
+        return f'record a plan such as {" or ".join(ok)}'
+    return ('record a plan that turns the IMU about each of its axes with that axis near up '
+            'and near down (docs/PLANS.md)')
 
 
 def run(args: Any) -> int:
@@ -252,7 +308,7 @@ def run(args: Any) -> int:
         reorder = passes[-1].reorder_stats
         verdict = run_.verdict
         if not verdict.passed and not args.force:
-            raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_)}; no '
+            raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_, fixture)}; no '
                                  'calibration written (--force writes it, marked as failing)')
     _reorder_note(reorder, args.reorder_window, args.quiet)
     calib = _with_provenance(calib, args, reorder)
