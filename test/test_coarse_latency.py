@@ -42,3 +42,16 @@ def test_latency_unbiased_by_encoder_noise(tmp_path: Path, latency_ms: float,
     st = coarse_start(imu.stamps_ns[:n], imu.gyro_rad_s[:n], imu.accel_m_s2[:n],
                       js.stamps_ns[keep], q[keep], fx)
     assert st.joint_latency_s == pytest.approx(latency_ms * 1e-3, abs=TOL_S)
+
+
+def test_latency_windows_across_a_gap_are_left_out() -> None:
+    """A window mean across a gap stands the sample after it in for the whole gap (CONTRACT 1:
+    that sample is the mean over its own nominal period): such windows are not used."""
+    from imu_calib_ros.core.estimator.coarse import whole_windows
+    dt = 0.01
+    t = np.arange(100) * dt
+    t[50:] += 0.03  # three samples lost before sample 50
+    dtk, i = whole_windows(t, dt, 4, np.arange(100))
+    assert dtk[50] == pytest.approx(0.04) and dtk[49] == pytest.approx(dt)
+    # windows ending at 50..53 hold the interval into sample 50; 4..49 and 54..99 do not
+    assert list(i) == list(range(4, 50)) + list(range(54, 100))

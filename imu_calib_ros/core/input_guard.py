@@ -107,6 +107,10 @@ class GuardConfig:
     gap_periods: float = setting(1.5, 'an interval longer than this many nominal periods is a gap '
                             '(CONTRACT 1)', 1.0)
     max_gap_s: float = setting(1.0, 'a gap longer than this triggers gap_policy', 1e-3)
+    interpolate_gap_s: float = setting(
+        0.1, 'a shorter gap while the filter runs (a driver dropping a few samples) is filled '
+        'by interpolating its neighbours, the navigation covariance widened by what that can '
+        'miss; 0 re-initialises at every gap during motion', 0.0)
     gap_policy: Literal['reinitialise', 'bridge'] = setting(
         'reinitialise', "long gap: 'reinitialise' the navigation states at the next "
         "stationary window keeping the calibration states and their covariance, or 'bridge' "

@@ -30,12 +30,14 @@ class ImuBuffer:
         self._w: list[FloatArray] = []
         self._f: list[FloatArray] = []
         self.last_stamp_ns: int | None = None  # newest sample ever appended
+        self.last_sample: tuple[FloatArray, FloatArray] | None = None  # its (gyro, accel)
 
     def append(self, t: IntArray, w: FloatArray, f: FloatArray) -> None:
         """Buffer samples the input guard accepted (finite, strictly increasing stamps)."""
         if not len(t):
             return
         self.last_stamp_ns = int(t[-1])
+        self.last_sample = (w[-1].copy(), f[-1].copy())
         self._t.append(t)
         self._w.append(w)
         self._f.append(f)

@@ -300,6 +300,21 @@ LATENCY_WINDOW_S = 0.04  # rates compared as means over this many seconds (see b
 LATENCY_ROUNDS = 6  # most rounds of the gyro fit and refine_latency at its latency
 
 
+def whole_windows(t_end_s: FloatArray, dt_s: float, n_win: int, select: NDArray[np.intp]
+                  ) -> tuple[FloatArray, NDArray[np.intp]]:
+    """Each interval's length and the windows of ``select`` (ending at sample ``i``, ``n_win``
+    intervals) that hold no gap. A sample after a gap (an interval > 1.5 nominal periods) is
+    the mean over its own nominal period only (CONTRACT 1): a window mean across it would
+    stand its rate in for the whole gap, off by the angular acceleration x half the gap,
+    which correlates with the shift (2 % of a MEMS unit's samples dropped in bursts moved the
+    latency by 0.64 ms, and the filter then gated updates through every turn)."""
+    dtk = np.diff(t_end_s, prepend=t_end_s[0] - dt_s)
+    gap = np.concatenate([[0], np.cumsum(dtk > 1.5 * dt_s)])  # gaps among intervals < k
+    i = np.asarray(select, np.intp)
+    i = i[i >= n_win]
+    return dtk, i[gap[i + 1] == gap[i + 1 - n_win]]
+
+
 def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
                     bias: FloatArray, dt_s: float, select: NDArray[np.intp]
                     ) -> tuple[float, float]:
@@ -323,10 +338,8 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
     select : indices ``i`` (``>= n_win``) of the windows ending at sample ``i`` to use.
     """
     n_win = max(1, int(round(LATENCY_WINDOW_S / dt_s)))
-    dtk = np.diff(t_end_s, prepend=t_end_s[0] - dt_s)  # each interval's length (gaps too)
+    dtk, i = whole_windows(t_end_s, dt_s, n_win, select)
     c = np.vstack([np.zeros((1, 3)), np.cumsum((w - bias) * dtk[:, None], axis=0)])
-    i = np.asarray(select, np.intp)
-    i = i[i >= n_win]
     t_b = t_end_s[i]
     t_a = t_end_s[i - n_win]  # the end of the interval before the window: its start
     T = t_b - t_a
@@ -407,11 +420,9 @@ def refine_latency(fixture: Any, spline: CubicSpline, t_end_s: FloatArray, w: Fl
     ``rotvec(R(t_a + s)^T R(t_b + s)) / T`` (no derivative of the encoder record: see
     :func:`measure_latency`), plus the earth rate."""
     n_win = max(1, int(round(LATENCY_WINDOW_S / dt_s)))
-    dtk = np.diff(t_end_s, prepend=t_end_s[0] - dt_s)
+    dtk, i = whole_windows(t_end_s, dt_s, n_win, select)
     cw = np.vstack([np.zeros((1, 3)), np.cumsum(w * dtk[:, None], axis=0)])
     cf = np.vstack([np.zeros((1, 3)), np.cumsum(f * dtk[:, None], axis=0)])
-    i = np.asarray(select, np.intp)
-    i = i[i >= n_win]
     if len(i) < 50:
         return s0, math.inf
     t_b = t_end_s[i]
@@ -706,6 +717,18 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         rw_g = _random_walk(wins, np.array([w.gyro_mean_rad_s for w in wins]) - pred_g,
                             noise_g, dt)
         rw_a = _random_walk(wins, fm_w - pred_a, noise_a, dt)
+    # the gyro fit took G on the raw accelerometer outputs f_raw = (I + Ka) f + ba; the
+    # model's G acts on the specific force f: G f_raw = G (I + Ka) f + G ba, so G and the
+    # bias move to that convention (a MEMS gyro's 300 deg/h/g on a raw 90 mg bias is
+    # 28 deg/h of bias, on a 3 % scale error 9 deg/h/g: a start that far off, held by its
+    # fit's small sigma, left G 6.7 sigma off at the end, the true noise model's run alike)
+    cg = em.gyro_cols('gyro_g_sensitivity')
+    G_raw = theta_g[cg].reshape(3, 3).copy()
+    if wins and np.all(np.isfinite(sig_g[cg])):
+        ba = theta_a[em.accel_cols('accel_bias')]
+        Ka = A @ R_m - np.eye(3)
+        theta_g[cg] = (G_raw @ (np.eye(3) + Ka)).ravel()
+        theta_g[em.gyro_cols('gyro_bias')] += G_raw @ ba
     # an error the data did not measure starts at its prior mean (none), whatever the
     # mounting rotation mixed into it
     theta_g = np.where(np.isfinite(sig_g), theta_g, 0.0)

@@ -148,6 +148,29 @@ def widen_for_gaps(P: FloatArray, layout: StateLayout, n_gaps: int) -> None:
     P[3:6, 3:6] += np.eye(3) * (1e-2 / layout.scale[3]) ** 2 * n_gaps
 
 
+def interpolated_gap_variance(w0: FloatArray, f0: FloatArray, w1: FloatArray, f1: FloatArray,
+                              gap_s: float, period_s: float, gyro_noise_rad_s_rt_hz: float,
+                              accel_noise_m_s2_rt_hz: float) -> tuple[FloatArray, FloatArray]:
+    """Attitude [rad^2] and velocity [(m/s)^2] variances per axis that filling a gap of
+    ``gap_s`` by linear interpolation between the samples ``(w0, f0)`` before and
+    ``(w1, f1)`` after it can miss: a rate that moves monotonically from ``w0`` to ``w1``
+    integrates to anywhere within ``|w1 - w0| gap_s / 2`` of the trapezoid (taken as one
+    sigma: the end of a ramp inside the gap comes close to it), and the filled samples share
+    the two end samples' noise instead of their own (``gap_s^2 / period_s N^2 / 2`` instead
+    of ``gap_s N^2``)."""
+    k = gap_s ** 2 / period_s / 2.0
+    var_att = (np.abs(w1 - w0) * gap_s / 2.0) ** 2 + k * gyro_noise_rad_s_rt_hz ** 2
+    var_vel = (np.abs(f1 - f0) * gap_s / 2.0) ** 2 + k * accel_noise_m_s2_rt_hz ** 2
+    return var_att, var_vel
+
+
+def widen_navigation(P: FloatArray, layout: StateLayout, var_att_rad2: FloatArray,
+                     var_vel_m2_s2: FloatArray) -> None:
+    """Add the attitude and velocity variances (per axis, SI) to ``P`` (scaled, in place)."""
+    P[0:3, 0:3] += np.diag(var_att_rad2) / layout.scale[0] ** 2
+    P[3:6, 3:6] += np.diag(var_vel_m2_s2) / layout.scale[3] ** 2
+
+
 def bridge_gap(P: FloatArray, layout: StateLayout, q1_s: FloatArray, gap_s: float,
                guard_config: GuardConfig) -> None:
     """Carry the filter over a long gap at rest (policy ``'bridge'``): ``P`` (scaled, in

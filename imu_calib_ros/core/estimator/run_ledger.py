@@ -202,11 +202,13 @@ class RunLedger:
     # ------------------------------------------------------------------ evidence
     def nis_totals(self) -> tuple[dict[str, NisTotals], bool]:
         """Whole-run gate counts per measurement kind (the estimator's, over every filter of
-        the run), and whether they cover every chunk (one velocity update per chunk)."""
+        the run), and whether they cover every chunk (one velocity update per chunk, none at
+        a chunk end inside an interpolated gap)."""
         out = {k: NisTotals(a, r, t) for k, (a, r, t) in self.est.nis_totals().items()}
         v = out.get('velocity')
         n_v = 0 if v is None else v.accepted + v.rejected
-        return out, n_v == int(self.est.counters.get('chunks', 0))
+        c = self.est.counters
+        return out, n_v == int(c.get('chunks', 0)) - int(c.get('updates_skipped_in_gaps', 0))
 
     def expected_samples(self) -> int:
         """IMU samples the recording's stamps span at the nominal rate."""
@@ -226,7 +228,9 @@ class RunLedger:
         received = int(c.get('imu_samples', 0))
         return RunEvidence(
             imu_received=received, imu_expected=max(self.expected_samples(), received),
-            imu_rejected=rejected, imu_used=int(c.get('imu_processed', 0)),
+            imu_rejected=rejected,
+            # samples filled into short gaps were lost, not used
+            imu_used=int(c.get('imu_processed', 0)) - int(c.get('imu_interpolated', 0)),
             imu_before_first_alignment=int(self.est.first_filter_dropped or 0),
             restarts=int(c.get('restarts', 0)), realignments=int(c.get('realignments', 0)),
             reinitialisations=int(c.get('gaps_reinitialised', 0))
