@@ -532,7 +532,7 @@ def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: floa
     fm = np.array([win.accel_mean_m_s2 for win in wins])
     nw = np.array([win.n for win in wins], float)
     A = np.zeros((3, 3))
-    fits = []
+    fits: list[tuple[FloatArray, FloatArray]] = []
     # window means weighted by their white noise; a weak prior (A = I +- 3 %, asymmetry
     # 0.3 %, bias 100 mg) keeps what the windows do not separate (with only the six
     # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
