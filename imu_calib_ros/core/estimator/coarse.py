@@ -599,10 +599,6 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         k = min(len(w), 2000)
         noise_g, noise_a = (white_noise_density(w[:k], dt), white_noise_density(f[:k], dt))
         notes.append('no stationary window: noise from the first samples (motion included)')
-    # --- accelerometers (item 2) first: the windows are all they need
-    accel_fit = _fit_accels(fixture, wins, noise_a, dt) if wins else None
-    if only_determined and (accel_fit is None or not _accels_pinned(accel_fit[1], ACCEL_LIMIT)):
-        return None
     # --- samples used by the regressions: inside the joint record, thinned if very many
     inside = (ts - dt > tj[0] + MAX_LATENCY_S) & (ts < tj[-1] - MAX_LATENCY_S)
     idx = np.nonzero(inside)[0]
@@ -614,12 +610,16 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         else np.zeros(3)
     # --- time offset (item 4)
     moving = np.linalg.norm(wi - bias0, axis=1) > max(20 * noise_g / math.sqrt(dt), 1e-3)
-    if moving.sum() > 50:
-        mv = idx[np.nonzero(moving)[0]]
-        mv = mv[np.linspace(0, len(mv) - 1, min(len(mv), 10_000)).astype(np.intp)]
-        s, s_sig = measure_latency(fixture, spline, ts, w, bias0, dt, mv)
-    else:
+    if moving.sum() <= 50:
         raise NoRotation('no rotation in the data: nothing to calibrate the gyros from')
+    # the accelerometers need only the windows: a caller that takes only a determined start
+    # stops here when they already show it is not
+    accel_fit = _fit_accels(fixture, wins, noise_a, dt) if only_determined and wins else None
+    if only_determined and (accel_fit is None or not _accels_pinned(accel_fit[1], ACCEL_LIMIT)):
+        return None
+    mv = idx[np.nonzero(moving)[0]]
+    mv = mv[np.linspace(0, len(mv) - 1, min(len(mv), 10_000)).astype(np.intp)]
+    s, s_sig = measure_latency(fixture, spline, ts, w, bias0, dt, mv)
     # --- gyros (item 2): w_i = B_i . w_nom + ag_i |w_i| + G_i . f + bg_i, at the latency
     # the rate magnitudes gave; then the latency again from the whole rate vector through
     # that fit (refine_latency: the magnitudes are blind to what the scale factors and the
@@ -707,8 +707,8 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     theta_a = np.zeros(em.N_ACCEL)
     sig_a = np.full(em.N_ACCEL, np.inf)
     g = fixture.site.gravity
-    if accel_fit is not None:
-        A, fits = accel_fit
+    if wins:
+        A, fits = accel_fit if accel_fit is not None else _fit_accels(fixture, wins, noise_a, dt)
         sA = np.zeros((3, 3))
         for i, (beta, var) in enumerate(fits):
             sd = np.sqrt(var)
