@@ -92,6 +92,12 @@ def implausible(start: 'CoarseStart') -> str | None:
     return None
 
 
+#: :meth:`CoarseStart.determined`: largest sigma of the gyro scale/misalignment and the
+#: mounting [rad, ratio], and of the accelerometer scale/misalignment, of a determined start
+GYRO_LIMIT = 2e-3
+ACCEL_LIMIT = 5e-3
+
+
 @dataclass(frozen=True)
 class CoarseStart:
     """A start point for the filter measured from the data (SI, error_model theta order).
@@ -116,7 +122,8 @@ class CoarseStart:
     duration_s: float
     notes: tuple[str, ...] = field(default=())
 
-    def determined(self, gyro_limit: float = 2e-3, accel_limit: float = 5e-3) -> bool:
+    def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT
+                   ) -> bool:
         """True when rotations about three axes and gravity along three directions pinned the
         gyro scale/misalignment and the mounting to ``gyro_limit`` (rad, ratio; they turn
         into attitude errors that multiply gravity) and the accelerometer scale/misalignment to
@@ -526,11 +533,52 @@ def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOI
     return (np.round(tb).astype(np.int64) + t0), qb
 
 
+def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: float
+                ) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
+    """The accelerometer fit on the window means, ``f = A g_nom + aa |f| + ba`` per axis:
+    ``(A, [(beta, var) of each axis])`` (:func:`_cluster_lstsq`; beta = A row, aa, ba)."""
+    g = fixture.site.gravity
+    qw = np.array([win.q_rad for win in wins])
+    g_nom = np.einsum('nki,k->ni', fixture.R_enu_imu(qw), np.array([0.0, 0.0, g]))
+    fm = np.array([win.accel_mean_m_s2 for win in wins])
+    nw = np.array([win.n for win in wins], float)
+    A = np.zeros((3, 3))
+    fits: list[tuple[FloatArray, FloatArray]] = []
+    # window means weighted by their white noise; a weak prior (A = I +- 3 %, asymmetry
+    # 0.3 %, bias 100 mg) keeps what the windows do not separate (with only the six
+    # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
+    # unmeasured); the quadratic term is left to the filter
+    sd0 = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
+    rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
+    Xa = np.hstack([g_nom, np.zeros((len(wins), 1)), np.ones((len(wins), 1))])
+    for _ in range(2):  # |f_i| regressor from the previous round's prediction
+        fits = []
+        for i in range(3):
+            Xa[:, 3] = np.abs(g_nom @ A[i]) if A.any() else np.abs(g_nom[:, i])
+            beta0 = np.zeros(5)
+            beta0[i] = 1.0
+            fits.append(_cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
+                                       beta0, sd0, noise_a ** 2 / dt))
+        A = np.array([f_[0][0:3] for f_ in fits])
+    return A, fits
+
+
+def _accels_pinned(fits: list[tuple[FloatArray, FloatArray]], accel_limit: float) -> bool:
+    """Whether the accelerometer fit leaves the scale and misalignment sigmas below
+    ``accel_limit``: necessary for :meth:`CoarseStart.determined` (the misalignment's sigma
+    adds the mounting's to these)."""
+    return bool(max(float(np.max(np.sqrt(var[0:3]))) for _, var in fits) < accel_limit)
+
+
 def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                  t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
-                 max_samples: int = 60_000) -> CoarseStart:
+                 max_samples: int = 60_000, only_determined: bool = False) -> CoarseStart | None:
     """The start point from interval-mean IMU samples and (unwrapped) joint states.
+
+    ``only_determined``: None, before the gyro fits, when the accelerometer fit already shows
+    that the start cannot be :meth:`~CoarseStart.determined` (the bootstrap's checks on too
+    little data: the gyro fits cost ~0.3 s on 200 s of 200 Hz, the window fit milliseconds).
 
     Parameters
     ----------
@@ -573,12 +621,16 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         else np.zeros(3)
     # --- time offset (item 4)
     moving = np.linalg.norm(wi - bias0, axis=1) > max(20 * noise_g / math.sqrt(dt), 1e-3)
-    if moving.sum() > 50:
-        mv = idx[np.nonzero(moving)[0]]
-        mv = mv[np.linspace(0, len(mv) - 1, min(len(mv), 10_000)).astype(np.intp)]
-        s, s_sig = measure_latency(fixture, spline, ts, w, bias0, dt, mv)
-    else:
+    if moving.sum() <= 50:
         raise NoRotation('no rotation in the data: nothing to calibrate the gyros from')
+    # the accelerometers need only the windows: a caller that takes only a determined start
+    # stops here when they already show it is not
+    accel_fit = _fit_accels(fixture, wins, noise_a, dt) if only_determined and wins else None
+    if only_determined and (accel_fit is None or not _accels_pinned(accel_fit[1], ACCEL_LIMIT)):
+        return None
+    mv = idx[np.nonzero(moving)[0]]
+    mv = mv[np.linspace(0, len(mv) - 1, min(len(mv), 10_000)).astype(np.intp)]
+    s, s_sig = measure_latency(fixture, spline, ts, w, bias0, dt, mv)
     # --- gyros (item 2): w_i = B_i . w_nom + ag_i |w_i| + G_i . f + bg_i, at the latency
     # the rate magnitudes gave; then the latency again from the whole rate vector through
     # that fit (refine_latency: the magnitudes are blind to what the scale factors and the
@@ -662,34 +714,13 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         sig_g[c + k] = 0.5 * math.hypot(sB[i, j], sB[j, i])
     mount = Rotation.from_matrix(R_m).as_rotvec()
     mount_sig = float(np.max(sB[~np.eye(3, dtype=bool)]))  # inf where not measured
-    # --- accelerometers (item 2): window means f = A g_nom + aa |f| + ba
+    # --- accelerometers (item 2): the window fit above (f = A g_nom + aa |f| + ba)
     theta_a = np.zeros(em.N_ACCEL)
     sig_a = np.full(em.N_ACCEL, np.inf)
     g = fixture.site.gravity
     if wins:
-        qw = np.array([win.q_rad for win in wins])
-        g_nom = np.einsum('nki,k->ni', fixture.R_enu_imu(qw), np.array([0.0, 0.0, g]))
-        fm = np.array([win.accel_mean_m_s2 for win in wins])
-        nw = np.array([win.n for win in wins], float)
-        A = np.zeros((3, 3))
+        A, fits = accel_fit if accel_fit is not None else _fit_accels(fixture, wins, noise_a, dt)
         sA = np.zeros((3, 3))
-        fits = []
-        # window means weighted by their white noise; a weak prior (A = I +- 3 %, asymmetry
-        # 0.3 %, bias 100 mg) keeps what the windows do not separate (with only the six
-        # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
-        # unmeasured); the quadratic term is left to the filter
-        sd0 = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
-        rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
-        Xa = np.hstack([g_nom, np.zeros((len(wins), 1)), np.ones((len(wins), 1))])
-        for _ in range(2):  # |f_i| regressor from the previous round's prediction
-            fits = []
-            for i in range(3):
-                Xa[:, 3] = np.abs(g_nom @ A[i]) if A.any() else np.abs(g_nom[:, i])
-                beta0 = np.zeros(5)
-                beta0[i] = 1.0
-                fits.append(_cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
-                                           beta0, sd0, noise_a ** 2 / dt))
-            A = np.array([f_[0][0:3] for f_ in fits])
         for i, (beta, var) in enumerate(fits):
             sd = np.sqrt(var)
             sA[i] = sd[0:3]
