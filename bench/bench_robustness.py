@@ -31,7 +31,9 @@ Factors
 Drawn per seed (printed with each case): the unit (errors and noise), mounting axis/angle/
 offset, latency value and sign, joint rate, encoder noise U(0.5, 20) urad, wrapped joint
 positions (1/2), joint velocities present (1/2), joint-name order (fixture, reversed,
-shuffled), an extra unknown joint (1/2), the random plan.
+shuffled), an extra unknown joint (1/2), the random plan; and (1/2, not the control's nominal
+runs) a driver that drops messages: U(0.2, 2) % of the IMU samples and U(0, 5) % of the joint
+states lost in bursts of ~5.
 
 Fractional design
 -----------------
@@ -96,6 +98,7 @@ import argparse
 import dataclasses
 import functools
 import hashlib
+import inspect
 import json
 import math
 import os
@@ -255,6 +258,9 @@ class Drawn:
                                  (c.joint_order, c.joint_order != 'fixture'),
                                  ('extra-joint', c.extra_joint),
                                  ('log-jitter', c.receipt_delay_s is not None)) if on]
+        if c.drop_fraction_imu or c.drop_fraction_joint:
+            bits.append(f'dropped imu {100 * c.drop_fraction_imu:.1f}%/joints '
+                        f'{100 * c.drop_fraction_joint:.1f}%')
         return ', '.join(bits)
 
 
@@ -288,7 +294,12 @@ def draw_case(case: Case) -> Drawn:
         extra_joint=False if ctrl else bool(rng.random() < 0.5),
         receipt_delay_s=(1.5e-3, 2.5e-3) if case.timing == 'fast_jitter' else None,
         block=2048 if case.timing == 'fast_jitter' else 4096)
-    return Drawn(unit, mounting, cfg, int(rng.integers(0, 2 ** 31)))
+    plan_seed = int(rng.integers(0, 2 ** 31))
+    # drawn after everything else, so that the other draws of a seed stay what they were
+    if not ctrl and rng.random() < 0.5:  # a driver that drops messages, in bursts of ~5
+        cfg = dataclasses.replace(cfg, drop_fraction_imu=float(rng.uniform(0.002, 0.02)),
+                                  drop_fraction_joint=float(rng.uniform(0.0, 0.05)))
+    return Drawn(unit, mounting, cfg, plan_seed)
 
 
 @functools.lru_cache(maxsize=1)
@@ -297,6 +308,7 @@ def _source_hash() -> str:
     h = hashlib.sha256()
     for mod in (world_sim, world_units):
         h.update(Path(str(mod.__file__)).read_bytes())
+    h.update(inspect.getsource(draw_case).encode())  # what a case's seed draws
     for src in sorted((REPO / 'imu_calib_ros' / 'core' / 'plans').glob('*.py')):
         h.update(src.read_bytes())
     for plan in ('savage_srt', 'srt_then_kozlov'):

@@ -55,3 +55,6 @@ def test_latency_windows_across_a_gap_are_left_out() -> None:
     assert dtk[50] == pytest.approx(0.04) and dtk[49] == pytest.approx(dt)
     # windows ending at 50..53 hold the interval into sample 50; 4..49 and 54..99 do not
     assert list(i) == list(range(4, 50)) + list(range(54, 100))
+    # a gap every few samples: too few whole windows, all are kept
+    t2 = np.cumsum(np.where(np.arange(100) % 3 == 0, 2 * dt, dt))
+    assert list(whole_windows(t2, dt, 4, np.arange(100))[1]) == list(range(4, 100))

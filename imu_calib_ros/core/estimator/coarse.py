@@ -314,12 +314,15 @@ def whole_windows(t_end_s: FloatArray, dt_s: float, n_win: int, select: NDArray[
     the mean over its own nominal period only (CONTRACT 1): a window mean across it would
     stand its rate in for the whole gap, off by the angular acceleration x half the gap,
     which correlates with the shift (2 % of a MEMS unit's samples dropped in bursts moved the
-    latency by 0.64 ms, and the filter then gated updates through every turn)."""
+    latency by 0.64 ms, and the filter then gated updates through every turn). When fewer
+    than half the windows are whole (a stream with a gap every few samples), all are kept:
+    a biased shift then beats one from a handful of windows."""
     dtk = np.diff(t_end_s, prepend=t_end_s[0] - dt_s)
     gap = np.concatenate([[0], np.cumsum(dtk > 1.5 * dt_s)])  # gaps among intervals < k
     i = np.asarray(select, np.intp)
     i = i[i >= n_win]
-    return dtk, i[gap[i + 1] == gap[i + 1 - n_win]]
+    whole = i[gap[i + 1] == gap[i + 1 - n_win]]
+    return dtk, whole if 2 * len(whole) >= len(i) else i
 
 
 def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
