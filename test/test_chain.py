@@ -184,3 +184,26 @@ def test_shipped_arm_plan_within_limits_and_chain_velocity_measurement_exact() -
                          np.zeros(3), lay, fx.anchor_velocity_enu_m_s(q, qd))
     assert np.abs(k.v_enu_m_s).max() > 0.3  # the arm moves the IMU fast
     assert np.abs(z).max() < 1e-12
+
+
+def test_still_joint_clamp_does_not_hide_a_starting_move() -> None:
+    """A chain joint's rate is zero only where it stays within the tolerance over the
+    estimator's still window (CHAIN_STILL_HALF_WINDOW_S either side), not just +-3 samples:
+    a quintic move of 1.5 rad over 5.4 s (arm6_excitation's orient moves) stays within 1e-4
+    rad over +-3 samples at 100 Hz for its first ~0.1 s while its rate reaches 3e-3 rad/s;
+    clamped, that is a 2-3 mm/s error at the end of an arm (gated against a tactical unit's
+    zero-velocity noise, and taken for bias walk)."""
+    from imu_calib_ros.core.estimator.buffers import JointBuffer
+    from imu_calib_ros.core.estimator.estimator import CHAIN_STILL_HALF_WINDOW_S
+    buf = JointBuffer({'joint_samples': 0})
+    t = np.arange(0.0, 8.0, 0.01)  # 100 Hz: at rest 2 s, then the move
+    s = np.clip((t - 2.0) / 5.4, 0.0, 1.0)
+    q = 1.5 * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)
+    buf.extend((t * 1e9).astype(np.int64), q[:, None])
+    ts = np.array([1.0, 2.04, 2.07], float)  # at rest, 40 and 70 ms into the move
+    true_rate = 1.5 * 30 * ((ts - 2.0).clip(0) / 5.4) ** 2 / 5.4
+    _, _, qd3 = buf.motion_at((ts * 1e9).astype(np.int64), 1e-4)
+    assert qd3[0, 0] == 0.0 and qd3[1, 0] == 0.0 and qd3[2, 0] == 0.0  # +-3 samples: clamped
+    _, _, qd = buf.motion_at((ts * 1e9).astype(np.int64), 1e-4, CHAIN_STILL_HALF_WINDOW_S)
+    assert qd[0, 0] == 0.0  # at rest, away from the move: still exactly zero
+    np.testing.assert_allclose(qd[1:, 0], true_rate[1:], rtol=0.05)

@@ -144,3 +144,22 @@ def test_chain_consider_predicts_the_fitted_mounting(arm6) -> None:  # noqa: ANN
     assert np.all(C_rho == 0.0)  # no motion was added
     # the last joint's offset is the mounting: no share of it in C_mu
     assert len(cc._q_joints) == arm6.n_joints - 1  # noqa: SLF001
+
+
+def test_dwells_sized_for_the_gyro_bias_sigma(arm6) -> None:  # noqa: ANN001
+    """Given the unit's white rate noise and the gyro-bias sigma wanted, the dwells share the
+    stationary time (N / sigma)^2 (never below dwell_s); nothing else in the plan changes."""
+    from imu_calib_ros.core.chain_plans import stationary_time_for_gyro_bias
+    plan, _ = excitation_plan(arm6)
+    n, sigma = math.radians(0.007), math.radians(0.667 / 3600.0)  # mems_mti1, 0.667 deg/h
+    need = stationary_time_for_gyro_bias(n, sigma)
+    assert 1400.0 < need < 1460.0
+    sized, _ = excitation_plan(arm6, gyro_noise_rad_s_rt_hz=n, gyro_bias_sigma_rad_s=sigma)
+    d0 = [s.params['duration_s'] for s in plan.steps if s.kind == 'dwell']
+    d1 = [s.params['duration_s'] for s in sized.steps if s.kind == 'dwell']
+    assert set(d0) == {10.0} and len(set(d1)) == 1 and len(d1) == len(d0)
+    assert need <= sum(d1) < need + len(d1)
+    assert [s.params for s in plan.steps if s.kind != 'dwell'] == \
+        [s.params for s in sized.steps if s.kind != 'dwell']
+    quiet, _ = excitation_plan(arm6, gyro_noise_rad_s_rt_hz=n / 100, gyro_bias_sigma_rad_s=sigma)
+    assert {s.params['duration_s'] for s in quiet.steps if s.kind == 'dwell'} == {10.0}

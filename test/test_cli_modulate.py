@@ -56,3 +56,19 @@ def test_modulate_bad_options_one_line(bag: Path, capsys) -> None:
     assert 'force' in capsys.readouterr().err
     assert main(['modulate', str(bag / 'in'), '--fixture', 'three_axis', '--output',
                  str(out), '--force']) == 0
+
+
+def test_modulate_takes_a_urdf_fixture(bag: Path) -> None:
+    """``--fixture robot.urdf --base-link --imu-link`` as replay takes it (issue 15): the
+    shipped three_axis.urdf demodulates the bag as three_axis.yaml does."""
+    from msg_adapters.bag import read_bag
+    a, b = bag / 'body_yaml', bag / 'body_urdf'
+    assert main(['modulate', str(bag / 'in'), '--fixture', 'three_axis', '--output',
+                 str(a), '--mode', 'four']) == 0
+    assert main(['modulate', str(bag / 'in'), '--fixture', 'three_axis.urdf', '--base-link',
+                 'base_link', '--imu-link', 'imu_link', '--output', str(b), '--mode',
+                 'four']) == 0
+    (ia, _), (ib, _) = read_bag(a), read_bag(b)
+    np.testing.assert_array_equal(ia.stamps_ns, ib.stamps_ns)
+    np.testing.assert_allclose(ib.gyro_rad_s, ia.gyro_rad_s, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ib.accel_m_s2, ia.accel_m_s2, rtol=0, atol=1e-12)

@@ -1,5 +1,8 @@
 """``imu-calib modulate BAG --fixture F --output OUT_BAG --mode one|two|four|continuous``.
 
+``--fixture`` is any fixture replay takes: a shipped name, a CONTRACT 2 YAML, or a ``.urdf``
+with ``--base-link`` and ``--imu-link`` (issue 15; the same :func:`~..core.fixture.load_fixture`).
+
 Writes the body-frame (platform-base) IMU stream of a rotation-modulated recording
 (core/methods/modulation.py) to a new bag, with the joint states copied.
 """
@@ -7,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import add_topic_arguments
+from . import add_topic_arguments, add_urdf_arguments, urdf_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -15,7 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser('modulate', help='rotation modulation: body-frame IMU stream to a bag')
     p.add_argument('bag', metavar='BAG', help='input bag (directory or .mcap)')
     p.add_argument('--fixture', required=True, metavar='F',
-                   help='fixture name or YAML path (CONTRACT 2)')
+                   help='fixture name, YAML path (CONTRACT 2) or .urdf (with --base-link, '
+                   '--imu-link)')
     p.add_argument('--output', required=True, metavar='OUT_BAG', help='output bag path')
     p.add_argument('--mode', choices=('one', 'two', 'four', 'continuous'),
                    default='continuous',
@@ -26,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    'turns most)')
     p.add_argument('--causal', action='store_true',
                    help='continuous mode: bias from the preceding revolution only')
+    add_urdf_arguments(p)
     add_topic_arguments(p, 'read from (and write to)')
     p.add_argument('--force', '--overwrite', dest='overwrite', action='store_true',
                    help='replace an existing output (as simulate --force)')
@@ -37,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.fixture import load_fixture
     from ..core.methods.modulation import DemodulationOptions, demodulate
     from msg_adapters.bag import read_bag, write_bag
-    fixture = load_fixture(args.fixture)
+    fixture = load_fixture(args.fixture, urdf_options(args))
     imu, joints = read_bag(args.bag, args.imu_topic, args.joint_topic)
     # --causal with a point mode: demodulate's InputError (one line, CONTRACT 5)
     out = demodulate(imu, joints, fixture,

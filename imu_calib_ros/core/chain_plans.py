@@ -178,8 +178,14 @@ def excitation_plan(fx: Fixture, q_home_rad: Any | None = None, rotation_deg: fl
                     vertical_rotation_deg: float = 180.0, rotation_s: float = 20.0,
                     dwell_s: float = 10.0, max_rate_rad_s: float = math.radians(30.0),
                     margin_rad: float = 0.05, min_height_m: float = 0.15, seed: int = 0,
-                    starts: int = 12) -> tuple[Plan, list[ExcitationRow]]:
+                    starts: int = 12, gyro_noise_rad_s_rt_hz: float | None = None,
+                    gyro_bias_sigma_rad_s: float | None = None
+                    ) -> tuple[Plan, list[ExcitationRow]]:
     """The SRT-like excitation plan of a chain (module docstring) and its table.
+
+    Every dwell lasts ``dwell_s``, or longer when the unit's white rate noise
+    ``gyro_noise_rad_s_rt_hz`` and the wanted gyro-bias sigma ``gyro_bias_sigma_rad_s`` are
+    both given: then the dwells share :func:`stationary_time_for_gyro_bias` equally.
 
     Returns
     -------
@@ -261,6 +267,12 @@ def excitation_plan(fx: Fixture, q_home_rad: Any | None = None, rotation_deg: fl
     if len(steps) == 2:
         raise PlanError('excitation plan: no joint of this chain can turn the IMU about any of '
                         'its axes within the limits')
+    if gyro_noise_rad_s_rt_hz is not None and gyro_bias_sigma_rad_s is not None:
+        dwells = [st['dwell'] for st in steps if 'dwell' in st]
+        need = stationary_time_for_gyro_bias(gyro_noise_rad_s_rt_hz, gyro_bias_sigma_rad_s)
+        each = max(dwell_s, math.ceil(need / len(dwells)))
+        for d in dwells:
+            d['duration_s'] = float(each)
     plan = plan_from_dict({'name': 'chain_excitation', 'description': (
         'SRT-like excitation generated for the chain (imu_calib_ros.core.chain_plans); '
         'start pose: ' + ', '.join(f'{nm} {math.degrees(v):.1f} deg'
@@ -268,6 +280,21 @@ def excitation_plan(fx: Fixture, q_home_rad: Any | None = None, rotation_deg: fl
         'steps': steps}, '<excitation plan>')
     build_profile(plan, fx, q_home)  # every step within the limits (PlanError otherwise)
     return plan, rows
+
+
+def stationary_time_for_gyro_bias(gyro_noise_rad_s_rt_hz: float,
+                                  gyro_bias_sigma_rad_s: float) -> float:
+    """Stationary time [s] an excitation plan needs for a gyro-bias sigma on a unit of white
+    rate noise ``N`` (angle random walk) and no bias instability: ``(N / sigma)^2``, the
+    bias of each axis being the mean rate over the dwells (the rotations between them add
+    little). Measured on arm6.urdf with mems_mti1's noise (0.007 deg/s/sqrt(Hz)) without
+    its instability, replayed with that grade (bench/bench_arm.py, seeds 1-3): sigmas
+    1.44, 0.93 and 0.72-0.74 deg/h with 280, 820 and 1400 s of dwells, where ``N /
+    sqrt(T)`` is 1.50, 0.88 and 0.67. A unit with a bias instability has a floor no plan
+    length lowers (:func:`imu_calib_ros.core.estimator.noise.gyro_bias_floor_rad_s`)."""
+    if gyro_bias_sigma_rad_s <= 0.0:
+        raise PlanError('stationary_time_for_gyro_bias: the wanted sigma must be positive')
+    return (gyro_noise_rad_s_rt_hz / gyro_bias_sigma_rad_s) ** 2
 
 
 def random_chain_plan(fx: Fixture, seed: int, count: int = 20,

@@ -213,25 +213,36 @@ class JointBuffer:
         return covered, interp_joints(rel, jrel, jq)
 
 
-    def motion_at(self, t_ns: IntArray, still_tol_rad: float
+    def motion_at(self, t_ns: IntArray, still_tol_rad: float,
+                  still_half_window_s: float = 0.0
                   ) -> tuple[NDArray[np.bool_], FloatArray | None, FloatArray | None]:
         """Joint positions and rates at the instants ``t_ns`` (a general chain's velocity,
         issue 15): the cubic spline of :meth:`positions_at` and its derivative; the rate of a
         joint that stays within ``still_tol_rad`` over the samples around an instant (+-3
-        samples) is exactly zero (encoder noise differentiated is not motion)."""
+        samples, and at least ``still_half_window_s`` either side) is exactly zero (encoder
+        noise differentiated is not motion). The clamp is wrong by the rate of a joint that
+        starts or stops moving within the window: up to ~``still_tol_rad`` over the window
+        (a quintic move's first 0.1 s stays within 1e-4 rad over +-3 samples at 100 Hz while
+        its rate reaches 3e-3 rad/s: 2-3 mm/s at the end of an arm, gated against a tactical
+        unit's zero-velocity noise; see ESTIMATOR.md, "General chains")."""
         covered = (t_ns >= self.t_ns[0]) & (t_ns <= self.t_ns[-1])
         if not covered.any():
             return covered, None, None
         t_in = t_ns[covered]
-        j0 = max(bisect.bisect_right(self.t_ns, int(t_in[0])) - 4, 0)
-        j1 = bisect.bisect_left(self.t_ns, int(t_in[-1])) + 4
+        w_ns = int(round(still_half_window_s * 1e9))
+        j0 = max(bisect.bisect_right(self.t_ns, int(t_in[0]) - w_ns) - 4, 0)
+        j1 = bisect.bisect_left(self.t_ns, int(t_in[-1]) + w_ns) + 4
         jt = np.array(self.t_ns[j0:j1], np.int64)
         jq = np.array(self.q_rad[j0:j1])
         rel = (t_ns - jt[0]).astype(float) * 1e-9
         jrel = (jt - jt[0]).astype(float) * 1e-9
         q, qd = interp_joints(rel, jrel, jq, rates=True)
         k = np.clip(np.searchsorted(jrel, rel), 0, len(jt) - 1)
-        lo, hi = np.clip(k - 3, 0, len(jt) - 1), np.clip(k + 3, 0, len(jt) - 1)
+        lo = np.minimum(np.clip(k - 3, 0, len(jt) - 1),
+                        np.searchsorted(jrel, rel - still_half_window_s, side='left'))
+        hi = np.maximum(np.clip(k + 3, 0, len(jt) - 1),
+                        np.searchsorted(jrel, rel + still_half_window_s, side='right') - 1)
+        hi = np.clip(hi, 0, len(jt) - 1)
         for b in range(len(t_ns)):
             seg = jq[lo[b]:hi[b] + 1]
             still = (seg.max(axis=0) - seg.min(axis=0)) <= still_tol_rad

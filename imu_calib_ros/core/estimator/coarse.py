@@ -262,7 +262,8 @@ def pair_walk(t_mid_s: FloatArray, T_s: FloatArray, means: FloatArray, white: fl
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ beta
     used = len(set(i.tolist()) | set(j.tolist()))
-    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1) * len(y) / used
+    cov = (np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1)
+           * max(len(y) / used, 1.0))  # never more independent than the pairs
     q, sq = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
     return (q if q > 0 and q > 3 * sq else 0.0), y, dt
 

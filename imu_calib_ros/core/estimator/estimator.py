@@ -77,6 +77,13 @@ __all__ = ['CalibrationEstimator', 'Estimate', 'prior_sigmas', 'CONTRACT_KEYS', 
 FloatArray = NDArray[np.float64]
 _LOG = logging.getLogger('imu_calib_ros.estimator')
 MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS to count
+# A chain joint's rate is clamped to zero where it stays within stationary_joint_tolerance_rad
+# over at least this either side of an update (buffers.JointBuffer.motion_at): the clamp is
+# then wrong by at most ~tol / window at a move's start or end (+-3 samples at 100 Hz: up to
+# 3e-3 rad/s, 2-3 mm/s at the end of an arm, gated against a tactical unit's zero-velocity
+# noise and read as bias walk by the NIS adaptation). The filter waits for joint states this
+# far beyond a chunk end (live and offline alike).
+CHAIN_STILL_HALF_WINDOW_S = 0.25
 
 
 class CalibrationEstimator:
@@ -477,7 +484,9 @@ class CalibrationEstimator:
             wait_ns = int(self.config.max_pending_s * 1e9)
             if t[-1] - t_j < wait_ns:
                 ends = t[n - 1:n * n_chunks:n]
-                n_chunks = int(np.searchsorted(ends, t_j, side='right'))
+                # a chain's still-joint clamp looks CHAIN_STILL_HALF_WINDOW_S ahead
+                lead = 0 if self.fixture.concurrent else int(CHAIN_STILL_HALF_WINDOW_S * 1e9)
+                n_chunks = int(np.searchsorted(ends, t_j - lead, side='right'))
         done = 0
         while done < n_chunks and self._running:
             k0 = done * n
@@ -596,7 +605,8 @@ class CalibrationEstimator:
         if not len(self._joints):
             return (np.zeros(B, bool), np.zeros((B, n)), np.zeros((B, n)), zeros,
                     np.zeros((B, 3, 3)), np.zeros((B, 3, 3)))
-        covered, q, qd = self._joints.motion_at(t_ns, cfg.stationary_joint_tolerance_rad)
+        covered, q, qd = self._joints.motion_at(t_ns, cfg.stationary_joint_tolerance_rad,
+                                                CHAIN_STILL_HALF_WINDOW_S)
         if q is None or qd is None:
             return (covered, np.zeros((B, n)), np.zeros((B, n)), zeros, np.zeros((B, 3, 3)),
                     np.zeros((B, 3, 3)))

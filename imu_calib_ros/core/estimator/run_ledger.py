@@ -345,7 +345,9 @@ class RunLedger:
             if short.sum() >= 6:
                 ys = y[short]
                 used_s = len(set(i[short].tolist()) | set(j[short].tolist()))
-                se_s = float(np.std(ys)) / math.sqrt(max(used_s, 1))
+                # no more independent differences than pairs (disjoint pairs: an arm's
+                # 180 deg blocks return once, each pair its own two windows)
+                se_s = float(np.std(ys)) / math.sqrt(max(min(used_s, len(ys)), 1))
                 if float(np.mean(ys)) > 2 * se_s:
                     q_short = float(ys.sum() / dt[short].sum())
             out.append(max(q_line, q_short))
