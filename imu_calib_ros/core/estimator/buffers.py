@@ -176,16 +176,21 @@ class JointBuffer:
             del self.q_rad[:k]
 
     def still_between(self, t0_ns: int, t1_ns: int, tol_rad: float) -> bool:
-        """True if samples cover ``[t0_ns, t1_ns]`` (the last no more than 0.5 s before
-        ``t1_ns``) and no joint moved by more than ``tol_rad`` over it."""
+        """True if samples bracket ``[t0_ns, t1_ns]`` (one at or before ``t0_ns``, one at or
+        after ``t1_ns``, at most 0.1 s beyond either end) and no joint moved by more than
+        ``tol_rad`` over them. Joint states missing around the end (not there yet, or
+        dropped) are not stillness: a gap inside a Kozlov oscillation whose joint states had
+        been dropped too was taken for a gap at rest, and the turn lost in it sent every
+        later update beyond the gate."""
         if not self.t_ns:
             return False
         jt, jq = self.arrays()
         i0 = int(np.searchsorted(jt, t0_ns, side='right')) - 1
-        i1 = int(np.searchsorted(jt, t1_ns, side='right'))
-        if i0 < 0 or jt[i1 - 1] < t1_ns - int(0.5e9):
+        i1 = int(np.searchsorted(jt, t1_ns, side='left'))
+        margin = int(0.1e9)
+        if i0 < 0 or i1 >= len(jt) or jt[i0] < t0_ns - margin or jt[i1] > t1_ns + margin:
             return False
-        travel = np.abs(jq[i0:i1] - jq[i0]).max()
+        travel = np.abs(jq[i0:i1 + 1] - jq[i0]).max()
         return bool(travel <= tol_rad)
 
     def positions_at(self, t_ns: IntArray) -> tuple[NDArray[np.bool_], FloatArray | None]:
