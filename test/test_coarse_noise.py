@@ -62,3 +62,19 @@ def test_noise_free_record_reads_zero_without_warnings() -> None:
     with np.errstate(all='raise'):
         got = white_noise_density(w, 0.005)
     assert got < 1e-15  # rounding of the constant: 1e-35 here
+
+
+@pytest.mark.parametrize('seed', [2, 3])
+def test_point_samples_as_trapezoid_means_read_their_own_density(seed: int) -> None:
+    """Point samples with white noise of density N (sigma N / sqrt(dt) each), turned into
+    interval means by the trapezoid: read as white noise they show ~0.55 N; with
+    ``point=True`` (Allan variance N^2 (m - 3/4) / (m^2 dt)) N itself, to the same few per
+    cent as white noise; the single-window reading at 2 dt alike."""
+    from imu_calib_ros.core.estimator.buffers import point_to_mean
+    from imu_calib_ros.core.estimator.noise import white_noise_from_window
+    n, dt = 3e-4, 0.01
+    pts = np.random.default_rng(seed).normal(0.0, n / np.sqrt(dt), (3000, 3))
+    means, _ = point_to_mean(pts, pts, None)
+    assert white_noise_density(means, dt) < 0.7 * n  # the bias this is about
+    assert white_noise_density(means, dt, point=True) == pytest.approx(n, rel=0.08)
+    assert white_noise_from_window(means, means, dt, point=True)[0] == pytest.approx(n, rel=0.08)

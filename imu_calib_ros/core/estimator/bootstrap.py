@@ -111,7 +111,8 @@ class Bootstrap:
                 # the accelerometers already show it is not (same outcome, 1/5 of the cost)
                 st = coarse_start(*arrays, fixture,
                                   tol_rad=self.config.stationary_joint_tolerance_rad,
-                                  only_determined=not final)
+                                  only_determined=not final,
+                                  point_samples=self.config.imu_sample_type == 'point')
             except NoRotation:
                 pass
             except (ValueError, np.linalg.LinAlgError) as exc:

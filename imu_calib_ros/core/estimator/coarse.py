@@ -207,7 +207,7 @@ def still_spans(t_ns: NDArray[np.int64], q: FloatArray, min_static_s: float, tol
     return out, int(starts[-1])
 
 
-def white_noise_density(x: FloatArray, dt_s: float) -> float:
+def white_noise_density(x: FloatArray, dt_s: float, point: bool = False) -> float:
     """White-noise density [unit/sqrt(Hz)] of a stationary record (N, 3); the rms over the axes.
 
     Overlapping Allan variance (``allantools.oadev``) at the short taus ``dt .. 512 dt`` (at most
@@ -217,6 +217,12 @@ def white_noise_density(x: FloatArray, dt_s: float) -> float:
     increment quantisation read as white noise: at 2 kHz three times the unit's angle random
     walk, and every sigma of the run 1.2-1.5x the true noise model's. The longer terms (bias
     instability, rate random walk) are negligible this close to the sample period.
+
+    ``point``: ``x`` are point samples turned into interval means by the trapezoid
+    (``buffers.point_to_mean``), whose neighbours share a point: their Allan variance at
+    ``tau = m dt`` is ``N^2 (m - 3/4) / (m^2 dt)``, not ``N^2 / (m dt)`` (at ``dt`` a quarter;
+    read as white noise, declared point samples came out at 55 % of their density and the run
+    failed its self-check, NIS 1.7 per dof).
     """
     import allantools
     from scipy.optimize import nnls
@@ -224,7 +230,8 @@ def white_noise_density(x: FloatArray, dt_s: float) -> float:
     m = np.array([k for k in (1, 2, 4, 8, 16, 32, 64, 128, 256, 512) if 8 * k <= n] or [1],
                  float)
     taus = m * dt_s
-    A = np.column_stack([1.0 / taus, 3.0 / taus ** 2])
+    A = np.column_stack([1.0 / taus - (0.75 * dt_s / taus ** 2 if point else 0.0),
+                         3.0 / taus ** 2])
     out = []
     for a in range(x.shape[1]):
         t_used, adev, _, _ = allantools.oadev(x[:, a], rate=1.0 / dt_s, data_type='freq',
@@ -577,7 +584,8 @@ def _accels_pinned(fits: list[tuple[FloatArray, FloatArray]], accel_limit: float
 def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                  t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
-                 max_samples: int = 60_000, only_determined: bool = False) -> CoarseStart | None:
+                 max_samples: int = 60_000, only_determined: bool = False,
+                 point_samples: bool = False) -> CoarseStart | None:
     """The start point from interval-mean IMU samples and (unwrapped) joint states.
 
     ``only_determined``: None, before the gyro fits, when the accelerometer fit already shows
@@ -606,13 +614,14 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     for win in wins:
         k0, k1 = np.searchsorted(t_imu_ns, [win.t0_ns, win.t1_ns])
         if k1 - k0 >= 20:
-            n_g.append(white_noise_density(w[k0:k1], dt))
-            n_a.append(white_noise_density(f[k0:k1], dt))
+            n_g.append(white_noise_density(w[k0:k1], dt, point_samples))
+            n_a.append(white_noise_density(f[k0:k1], dt, point_samples))
     if n_g:
         noise_g, noise_a = float(np.median(n_g)), float(np.median(n_a))
     else:
         k = min(len(w), 2000)
-        noise_g, noise_a = (white_noise_density(w[:k], dt), white_noise_density(f[:k], dt))
+        noise_g, noise_a = (white_noise_density(w[:k], dt, point_samples),
+                            white_noise_density(f[:k], dt, point_samples))
         notes.append('no stationary window: noise from the first samples (motion included)')
     # --- samples used by the regressions: inside the joint record, thinned if very many
     inside = (ts - dt > tj[0] + MAX_LATENCY_S) & (ts < tj[-1] - MAX_LATENCY_S)

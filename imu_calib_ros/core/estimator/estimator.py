@@ -753,8 +753,9 @@ class CalibrationEstimator:
         self._n = al.samples_per_chunk
         self._half_span = min(omega_dot_half_span(self._nominal_dt), self._n)
         if cfg.noise_source == 'data' and self.start is None:
-            self._process_noise.white = white_noise_from_window(al.gyro_rad_s, al.accel_m_s2,
-                                                                al.nominal_dt_s)
+            self._process_noise.white = white_noise_from_window(
+                al.gyro_rad_s, al.accel_m_s2, al.nominal_dt_s,
+                self.config.imu_sample_type == 'point')
         if self._unsettled:  # after a gate cascade or a restart: the start is poor
             self._settle_until_ns = int(t[0]) + int(cfg.settle_s * 1e9)
             self._unsettled = False

@@ -65,9 +65,12 @@ def white_noise_densities(start: CoarseStart | None, grade: ImuGrade | None,
     return max(n[0], WHITE_NOISE_FLOOR[0]), max(n[1], WHITE_NOISE_FLOOR[1])
 
 
-def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float) -> tuple[float, float]:
+def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float,
+                            point: bool = False) -> tuple[float, float]:
     """White-noise densities from a stationary window (Allan deviation at the shortest tau,
-    where white noise dominates: ``N = sigma_A(tau) sqrt(tau)``, IEEE Std 952-1997 annex C)."""
+    where white noise dominates: ``N = sigma_A(tau) sqrt(tau)``, IEEE Std 952-1997 annex C).
+    ``point``: trapezoid means of point samples, whose Allan variance at ``2 dt`` is 5/8 of
+    white noise's (:func:`.coarse.white_noise_density`)."""
     import allantools
     rate = 1.0 / dt_s
     out = []
@@ -76,7 +79,7 @@ def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float) -> tuple[
         for a in range(3):
             taus, adev, _, _ = allantools.oadev(x[:, a], rate=rate, data_type='freq',
                                                 taus=np.array([dt_s * 2]))
-            dens.append(adev[0] * math.sqrt(taus[0]))
+            dens.append(adev[0] * math.sqrt(taus[0]) / (math.sqrt(0.625) if point else 1.0))
         out.append(float(np.sqrt(np.mean(np.square(dens)))))
     return out[0], out[1]
 
