@@ -22,6 +22,11 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 
+#: a joint-state interval longer than this many median intervals is a hole: no encoder
+#: measurement inside it (one lost state, twice the spacing, is still interpolated)
+JOINT_HOLE_PERIODS = 2.5
+
+
 class ImuBuffer:
     """Accepted IMU samples not yet processed, as a list of array pieces (joined on read)."""
 
@@ -199,7 +204,11 @@ class JointBuffer:
         Returns
         -------
         covered : (B,) bool
-            Instants inside the span of the buffered samples.
+            Instants inside the span of the buffered samples and not inside a hole of the
+            joint record (the two samples around the instant more than
+            :data:`JOINT_HOLE_PERIODS` of its median spacing apart: joint states lost in a
+            burst; the spline across 0.5 s of a move at 10 Hz was off by milliradians, and
+            the encoder attitude updates there were gated).
         q : (B, n_joints) or None
             :func:`interp_joints` at every instant (clamped to the span), None when no
             instant is covered. Only the samples around the covered instants are read: the
@@ -213,6 +222,12 @@ class JointBuffer:
         j1 = bisect.bisect_left(self.t_ns, int(t_in[-1])) + 3
         jt = np.array(self.t_ns[j0:j1], np.int64)
         jq = np.array(self.q_rad[j0:j1])
+        if len(jt) > 2:
+            spacing = np.diff(jt)
+            k = np.clip(np.searchsorted(jt, t_ns, side='right'), 1, len(jt) - 1)
+            covered &= spacing[k - 1] <= JOINT_HOLE_PERIODS * np.median(spacing)
+            if not covered.any():
+                return covered, None
         rel = (t_ns - jt[0]).astype(float) * 1e-9
         jrel = (jt - jt[0]).astype(float) * 1e-9
         return covered, interp_joints(rel, jrel, jq)

@@ -1,0 +1,44 @@
+"""The joint buffer's encoder record: holes (joint states lost in a burst) and stillness over an
+IMU gap (issue 11: a driver that drops messages)."""
+from __future__ import annotations
+
+import numpy as np
+
+from imu_calib_ros.core.estimator.buffers import JOINT_HOLE_PERIODS, JointBuffer
+
+
+def _buffer(t_s: np.ndarray, q: np.ndarray) -> JointBuffer:
+    buf = JointBuffer({'joint_samples': 0})
+    buf.extend((t_s * 1e9).astype(np.int64), q[:, None])
+    return buf
+
+
+def test_no_encoder_position_inside_a_hole_of_the_joint_record() -> None:
+    """10 Hz joint states of a turn at 0.5 rad/s: one state lost (0.2 s, interpolated), then
+    five in a row (0.6 s > 2.5 periods: no position, the spline across it is a guess)."""
+    t = np.arange(0.0, 10.0, 0.1)
+    keep = np.ones(len(t), bool)
+    keep[30] = False  # one lost: 2.9 .. 3.1
+    keep[60:65] = False  # a burst: 5.9 .. 6.5
+    buf = _buffer(t[keep], 0.5 * t[keep] + 0.2 * np.sin(t[keep]))
+    at = np.array([2.0, 3.05, 6.2, 6.45, 8.0])
+    covered, q = buf.positions_at((at * 1e9).astype(np.int64))
+    assert JOINT_HOLE_PERIODS == 2.5
+    assert covered.tolist() == [True, True, False, False, True]
+    assert q is not None
+    np.testing.assert_allclose(q[[0, 1, 4], 0], 0.5 * at[[0, 1, 4]] + 0.2 * np.sin(at[[0, 1, 4]]),
+                               atol=2e-4)
+
+
+def test_stillness_over_an_imu_gap_needs_joint_states_on_both_sides() -> None:
+    """At rest, then a move from 5 s on; joint states lost from 4.8 s to 6 s. An IMU gap
+    4.9 .. 5.05 s has no joint state after it within 0.1 s: not known to be still (before, the
+    last state before the gap stood for the whole of it, and the move was taken for rest)."""
+    t = np.arange(0.0, 10.0, 0.01)
+    q = np.where(t < 5.0, 0.0, 0.3 * (t - 5.0))
+    keep = (t < 4.8) | (t >= 6.0)
+    buf = _buffer(t[keep], q[keep])
+    ns = 10 ** 9
+    assert not buf.still_between(int(4.9 * ns), int(5.05 * ns), 1e-4)
+    assert buf.still_between(int(2.0 * ns), int(2.3 * ns), 1e-4)  # at rest, states around it
+    assert not buf.still_between(int(6.1 * ns), int(6.2 * ns), 1e-4)  # moving
