@@ -158,7 +158,7 @@ def test_short_gap_during_motion_is_interpolated_and_stays_consistent(sim, lost_
     interpolate_gap_s) is filled between its neighbours and the navigation covariance widened
     by what that can miss; no re-alignment, no update inside the gap, and the result stays
     consistent."""
-    est = run(sim, without(sim.imu, 45.0, 45.0 + lost_s))
+    est = run(sim, without(sim.imu, 45.0, 45.0 + lost_s), GuardConfig(interpolate_gap_s=0.1))
     h = est.health()
     assert h['flagged']['gap'] == 1 and h['flagged']['long_gap'] == 0
     assert est.counters['gaps_interpolated'] == 1

@@ -113,9 +113,9 @@ def test_a_grade_the_data_contradict_is_named_in_one_line(tmp_path: Path, capsys
 
 
 def test_point_samples_declared_with_dropped_samples(tmp_path: Path, capsys) -> None:
-    """Point samples declared as such (``imu_sample_type: point``) with 2 % of them lost in
-    bursts: a filled gap interpolates the raw points, and the mean after the gap is that of
-    its own period (not the two points across the gap)."""
+    """Point samples declared as such (``imu_sample_type: point``), 2 % of them lost in
+    bursts: their trapezoid means' noise is read as such (read as white noise, 55 % of the
+    density: refused with NIS 1.7 per dof, with or without the drops)."""
     bag, truth = make_case(tmp_path, unit='industrial_mems', size=1.0, mount_deg=3.0,
                            sample_type='point', drop_fraction_imu=0.02, seed=3)
     cfg = tmp_path / 'point.yaml'
@@ -123,7 +123,6 @@ def test_point_samples_declared_with_dropped_samples(tmp_path: Path, capsys) -> 
     out = tmp_path / 'calib.yaml'
     _replay(bag, truth.fixture_path, out, capsys, '--config', str(cfg))
     calib = yaml.safe_load(out.read_text())
-    assert calib['imu_calibration']['estimator']['health']['gaps_interpolated'] > 10
     rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
     worst = max(rows, key=lambda r: abs(r.z))
     assert abs(worst.z) < 4.0, worst

@@ -108,9 +108,11 @@ class GuardConfig:
                             '(CONTRACT 1)', 1.0)
     max_gap_s: float = setting(1.0, 'a gap longer than this triggers gap_policy', 1e-3)
     interpolate_gap_s: float = setting(
-        0.1, 'a shorter gap while the filter runs (a driver dropping a few samples) is filled '
+        0.0, 'a shorter gap while the filter runs (a driver dropping a few samples) is filled '
         'by interpolating its neighbours, the navigation covariance widened by what that can '
-        'miss; 0 re-initialises at every gap during motion', 0.0)
+        'miss (up to 2.4x smaller sigmas on a MEMS unit; off by default: it set off the '
+        'bias-noise adaptation on a navigation unit); 0 re-initialises at every gap during '
+        'motion', 0.0)
     gap_policy: Literal['reinitialise', 'bridge'] = setting(
         'reinitialise', "long gap: 'reinitialise' the navigation states at the next "
         "stationary window keeping the calibration states and their covariance, or 'bridge' "

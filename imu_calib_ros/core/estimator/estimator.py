@@ -415,9 +415,7 @@ class CalibrationEstimator:
     def _accept_imu(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray, gap_idx: Any,
                     long_gap_idx: Any) -> None:
         """Samples the guard kept: to interval means, split at gaps, processed by blocks."""
-        raw: tuple[FloatArray, FloatArray, Any] | None = None
         if self.config.imu_sample_type == 'point':  # CONTRACT 1: point samples as means
-            raw = (w, f, self._point_prev)
             raw_last = (int(t[-1]), w[-1].copy(), f[-1].copy())
             w, f = point_to_mean(w, f, self._point_prev)
             self._point_prev = raw_last
@@ -433,13 +431,7 @@ class CalibrationEstimator:
             t_before = self._imu.last_stamp_ns
             if a in gaps and t_before is not None:
                 t_after = int(t[a])
-                points = None
-                if raw is not None:  # the raw points on either side of the gap
-                    prev = raw[2] if a == 0 else (None, raw[0][a - 1], raw[1][a - 1])
-                    if prev is not None:
-                        points = (prev[1], prev[2], raw[0][a], raw[1][a])
-                if a not in long_gaps and self._fill_gap(t_before, t_after, w[a], f[a],
-                                                         points):
+                if a not in long_gaps and self._fill_gap(t_before, t_after, w[a], f[a]):
                     pass
                 elif a in long_gaps or not self._joints.still_between(t_before, t_after, tol):
                     self._on_gap(t_before, t_after)
@@ -933,7 +925,7 @@ class CalibrationEstimator:
         self._cascade = False
 
     def _fill_gap(self, t_before_ns: int, t_after_ns: int, w_after: FloatArray,
-                  f_after: FloatArray, points: tuple[FloatArray, ...] | None = None) -> bool:
+                  f_after: FloatArray) -> bool:
         """A short gap (at most ``guard_config.interpolate_gap_s``) while the filter runs: a
         driver dropped a few samples. Fill the lost nominal periods with samples interpolated
         linearly between the last sample before the gap and the one after it (CONTRACT 1: the
@@ -942,10 +934,10 @@ class CalibrationEstimator:
         that the turn lost in the gap costs a little attitude accuracy instead of the
         navigation (re-initialised, the rest of the turn was lost until the next stationary
         window: with 2 % of a MEMS unit's samples dropped in bursts, the size effect came out
-        9 sigma off). Point samples (``points``: the raw points before and after the gap)
-        are interpolated as points, and the mean after the gap (``w_after``, ``f_after``,
-        rewritten in place) is the one of its own period, not the two points across the
-        gap. Returns whether it filled the gap."""
+        9 sigma off). Off by default (``interpolate_gap_s`` 0): on a navigation-grade unit
+        with 1.7 % of its samples dropped, the fills' errors, each within the widening, still
+        set off the bias-noise adaptation twice and left an accelerometer bias 4.6 sigma off
+        (true samples in the same fills: clean). Returns whether it filled the gap."""
         cfg = self.guard_config
         last = self._imu.last_sample
         period_ns = int(round(self._nominal_dt * 1e9))
@@ -960,17 +952,9 @@ class CalibrationEstimator:
         t_fill = t_fill[t_fill > t_before_ns]
         if not len(t_fill):
             return False
-        if points is not None:  # interval means of the interpolated points
-            w0, f0, w1, f1 = points
-            half = 0.5 * period_ns
-            a = ((np.append(t_fill, t_after_ns) - half - t_before_ns) / gap_ns)[:, None]
-            w_all, f_all = w0 + a * (w1 - w0), f0 + a * (f1 - f0)
-            w_after[:], f_after[:] = w_all[-1], f_all[-1]
-            self._imu.append(t_fill, w_all[:-1], f_all[:-1])
-        else:
-            w0, f0 = last
-            a = ((t_fill - t_before_ns) / gap_ns)[:, None]
-            self._imu.append(t_fill, w0 + a * (w_after - w0), f0 + a * (f_after - f0))
+        w0, f0 = last
+        a = ((t_fill - t_before_ns) / gap_ns)[:, None]
+        self._imu.append(t_fill, w0 + a * (w_after - w0), f0 + a * (f_after - f0))
         n_g, n_a, _, _ = self.assumed_noise()
         var_att, var_vel = interpolated_gap_variance(w0, f0, w_after, f_after, gap_ns * 1e-9,
                                                      self._nominal_dt, n_g, n_a)
