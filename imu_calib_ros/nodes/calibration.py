@@ -69,7 +69,7 @@ from ..core.types import ImuBatch, JointBatch, JointSample
 from .common import (Endpoint, NodeInterface, declare_config, finite, latched_qos,
                      publish_corrected, quiet_publisher, reliable_qos, run_node, sensor_qos)
 from .fixture_source import (RobotDescriptionWatcher, describe_fixture,
-                             load_node_fixture_and_urdf, urdf_field)
+                             UrdfFixtureFields, load_node_fixture_and_urdf)
 from .input_thread import InputThread
 
 NODE_NAME = 'calibration'
@@ -104,7 +104,7 @@ LIVE_BLOCK_CHUNKS = EstimatorConfig().block_chunks
 
 
 @dataclass(frozen=True)
-class CalibrationNodeConfig:
+class CalibrationNodeConfig(UrdfFixtureFields):  # + the URDF parameters
     """Parameters of the calibration node (``config/calibration_node.yaml``)."""
 
     fixture: str = field(default='', metadata={
@@ -112,14 +112,6 @@ class CalibrationNodeConfig:
                ' fixture name (three_axis, savage_2axis, arm6.urdf), or robot_description: the'
                ' URDF from the robot_description topic (issue 15)',
         'required': "a calibration against another table's kinematics is silently wrong"})
-    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
-    base_link: str = urdf_field('base_link')
-    imu_link: str = urdf_field('imu_link')
-    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
-    site_height_m: float | None = urdf_field('site_height_m')
-    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
-    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
-    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     imu_grade: str = field(default='', metadata={
         'doc': 'optional IMU grade hint (config/imus name or path): prior floors; empty = '
                'none, everything measured from the data (issue 11)'})

@@ -5,9 +5,9 @@ The owner of the node parameters that choose and shape a fixture (``fixture`` as
 doc and default differ per node): the URDF chain's ends ``base_link`` and ``imu_link`` and
 the site overrides of :class:`~imu_calib_ros.core.urdf_fixture.UrdfOptions`
 (``site_latitude_deg``, ``site_height_m``, ``site_gravity_m_s2``, ``site_base_rpy_deg``), and
-``robot_description_timeout_s``. A node's config dataclass declares them with
-:func:`urdf_field`, so ``--help`` and the unknown-parameter refusal of
-:mod:`.common` cover them like every other parameter.
+``robot_description_timeout_s``. A node's config dataclass derives from
+:class:`UrdfFixtureFields`, which declares them once, so ``--help`` and the
+unknown-parameter refusal of :mod:`.common` cover them like every other parameter.
 
 ``fixture: robot_description`` (:data:`ROBOT_DESCRIPTION`) waits for one
 ``std_msgs/String`` on the relative topic ``robot_description`` with the QoS
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..core.errors import ConfigError
@@ -63,10 +63,24 @@ URDF_PARAMETERS = tuple(_URDF_FIELDS)
 
 
 def urdf_field(name: str) -> Any:
-    """The dataclass ``field`` of URDF parameter ``name`` (one of :data:`URDF_PARAMETERS`)
-    for a node's config: ``base_link: str = urdf_field('base_link')``."""
+    """The dataclass ``field`` of URDF parameter ``name`` (one of :data:`URDF_PARAMETERS`),
+    as :class:`UrdfFixtureFields` declares it."""
     default, meta = _URDF_FIELDS[name]
     return field(default=default, metadata=dict(meta))
+
+
+@dataclass(frozen=True)
+class UrdfFixtureFields:
+    """The :data:`URDF_PARAMETERS` of a node whose ``fixture`` may be a URDF (issue 15), once:
+    the calibration, modulation, turntable_sim and turntable_driver configs derive from it."""
+
+    base_link: str = urdf_field('base_link')
+    imu_link: str = urdf_field('imu_link')
+    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
+    site_height_m: float | None = urdf_field('site_height_m')
+    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
+    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
+    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
 
 
 def urdf_options(cfg: Any) -> Any:

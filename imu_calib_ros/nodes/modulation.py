@@ -42,27 +42,19 @@ from ..core.methods.modulation import MODES, StreamingDemodulator
 from ..core.reorder import ReorderBuffer
 from .common import (Endpoint, NodeInterface, declare_config, finite, log_at_exit,
                      quiet_publisher, reliable_qos, run_node, sensor_qos)
-from .fixture_source import load_node_fixture, urdf_field
+from .fixture_source import UrdfFixtureFields, load_node_fixture
 
 NODE_NAME = 'modulation'
 
 
 @dataclass(frozen=True)
-class ModulationConfig:
+class ModulationConfig(UrdfFixtureFields):  # + the URDF parameters
     """Parameters of the modulation node."""
 
     fixture: str = field(default='', metadata={
         'doc': 'fixture file (CONTRACT 2 YAML or a .urdf), shipped fixture name, or '
                'robot_description (the URDF on that topic): the modulation joint axis',
         'required': True})
-    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
-    base_link: str = urdf_field('base_link')
-    imu_link: str = urdf_field('imu_link')
-    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
-    site_height_m: float | None = urdf_field('site_height_m')
-    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
-    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
-    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     joint: str = field(default='', metadata={
         'doc': 'modulation joint name; empty = the innermost joint'})
     mode: str = field(default='continuous', metadata={

@@ -44,13 +44,13 @@ from ..core.errors import ImuCalibError, PlanError
 from ..core.types import FloatArray
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      sensor_qos)
-from .fixture_source import load_node_fixture, urdf_field
+from .fixture_source import UrdfFixtureFields, load_node_fixture
 
 NODE_NAME = 'turntable_driver'
 
 
 @dataclass(frozen=True)
-class TurntableDriverConfig:
+class TurntableDriverConfig(UrdfFixtureFields):  # + the URDF parameters
     """Parameters of the turntable driver node."""
 
     fixture: str = field(default='', metadata={
@@ -58,14 +58,6 @@ class TurntableDriverConfig:
                'shipped fixture name, or robot_description (the URDF on that topic): joint '
                'names, axes and limits',
         'required': "another table's joint names and axes would move this one"})
-    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
-    base_link: str = urdf_field('base_link')
-    imu_link: str = urdf_field('imu_link')
-    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
-    site_height_m: float | None = urdf_field('site_height_m')
-    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
-    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
-    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     plan: str = field(default='', metadata={
         'doc': 'motion plan (config/plans name, e.g. savage_srt, or path)',
         'required': 'this node moves hardware'})

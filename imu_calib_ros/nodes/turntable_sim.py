@@ -37,26 +37,18 @@ from ..core.errors import ConfigError, PlanError
 from ..core.types import FloatArray, ImuBatch, JointBatch
 from .common import (Endpoint, NodeInterface, declare_config, reliable_qos, run_node,
                      time_msg_from_ns)
-from .fixture_source import load_node_fixture, urdf_field
+from .fixture_source import UrdfFixtureFields, load_node_fixture
 
 NODE_NAME = 'turntable_sim'
 
 
 @dataclass(frozen=True)
-class TurntableSimConfig:
+class TurntableSimConfig(UrdfFixtureFields):  # + the URDF parameters
     """Parameters of the turntable simulator node (``config/turntable_sim.yaml``)."""
 
     fixture: str = field(default='three_axis', metadata={
         'doc': 'fixture file (CONTRACT 2 YAML or a .urdf), shipped fixture name (three_axis, '
                'savage_2axis, arm6.urdf), or robot_description (the URDF on that topic)'})
-    # URDF fixtures (issue 15): the chain's ends and the site (nodes/fixture_source.py)
-    base_link: str = urdf_field('base_link')
-    imu_link: str = urdf_field('imu_link')
-    site_latitude_deg: float | None = urdf_field('site_latitude_deg')
-    site_height_m: float | None = urdf_field('site_height_m')
-    site_gravity_m_s2: float | None = urdf_field('site_gravity_m_s2')
-    site_base_rpy_deg: tuple[float, float, float] | None = urdf_field('site_base_rpy_deg')
-    robot_description_timeout_s: float = urdf_field('robot_description_timeout_s')
     imu_grade: str = field(default='nav_grade', metadata={
         'doc': 'IMU grade (config/imus name or path): noise and error magnitudes'})
     plan: str = field(default='', metadata={

@@ -144,8 +144,7 @@ def rollback_covariance(layout: StateLayout, snapshot_cov: FloatArray | None,
 def widen_for_gaps(P: FloatArray, layout: StateLayout, n_gaps: int) -> None:
     """Motion during a gap inside a block is lost (CONTRACT 1): widen the navigation block of
     ``P`` (scaled, in place) by 1 mrad and 10 mm/s per gap."""
-    P[0:3, 0:3] += np.eye(3) * (1e-3 / layout.scale[0]) ** 2 * n_gaps
-    P[3:6, 3:6] += np.eye(3) * (1e-2 / layout.scale[3]) ** 2 * n_gaps
+    widen_navigation(P, layout, np.full(3, 1e-3 ** 2 * n_gaps), np.full(3, 1e-2 ** 2 * n_gaps))
 
 
 def interpolated_gap_variance(w0: FloatArray, f0: FloatArray, w1: FloatArray, f1: FloatArray,
