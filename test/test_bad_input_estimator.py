@@ -170,19 +170,34 @@ def test_short_gap_during_motion_is_interpolated_and_stays_consistent(sim, lost_
     assert np.abs(z).max() < 4.0, np.abs(z).max()
 
 
-@pytest.mark.parametrize('interpolate_gap_s', [0.1, 0.0])
-def test_a_longer_gap_during_motion_reinitialises_and_stays_consistent(
-        sim, interpolate_gap_s) -> None:
-    """Longer than interpolate_gap_s but shorter than max_gap_s (or with the interpolation
-    off): the lost part of the turn (CONTRACT 1) re-initialises the navigation, the
-    calibration carries on, and the result stays consistent (without the handling the
-    filter diverges)."""
-    lost_s = 0.5 if interpolate_gap_s else 0.05
-    est = run(sim, without(sim.imu, 45.0, 45.0 + lost_s),
-              GuardConfig(interpolate_gap_s=interpolate_gap_s))
+@pytest.mark.parametrize('lost_s', [0.05, 0.5])
+def test_a_gap_during_motion_is_bridged_with_the_encoders(sim, lost_s) -> None:
+    """Shorter than max_gap_s, in the middle of a rotation: the navigation is carried across
+    the gap by the rotation the encoders measured (no re-alignment), and the result stays
+    consistent and as precise as without the gap (re-initialised, the rest of the turn was
+    lost until the next dwell)."""
+    est = run(sim, without(sim.imu, 45.0, 45.0 + lost_s))
     h = est.health()
     assert h['flagged']['gap'] == 1 and h['flagged']['long_gap'] == 0
-    assert est.counters['gaps_reinitialised'] == 1 and est.counters['gaps_interpolated'] == 0
+    assert est.counters['gaps_bridged_in_motion'] == 1
+    assert est.counters['gaps_reinitialised'] == 0 and est.counters['gaps_interpolated'] == 0
+    assert h['status'] == 'OK' and not h['diverged'], h['message']
+    z = z_scores(est, sim)
+    assert np.abs(z).max() < 4.0, np.abs(z).max()
+    whole = run(sim, sim.imu)
+    ratio = (np.sqrt(np.diag(est.estimate_state().covariance))
+             / np.sqrt(np.diag(whole.estimate_state().covariance)))
+    assert ratio.max() < 1.2, ratio.max()  # a few samples cost little
+
+
+def test_a_gap_during_motion_reinitialises_without_the_bridge(sim) -> None:
+    """``bridge_motion`` off: the lost part of the turn (CONTRACT 1) re-initialises the
+    navigation, the calibration carries on, and the result stays consistent (without any
+    handling the filter diverges)."""
+    est = run(sim, without(sim.imu, 45.0, 45.05), GuardConfig(bridge_motion=False))
+    h = est.health()
+    assert h['flagged']['gap'] == 1 and h['flagged']['long_gap'] == 0
+    assert est.counters['gaps_reinitialised'] == 1 and est.counters['gaps_bridged_in_motion'] == 0
     assert h['status'] == 'OK' and not h['diverged'], h['message']
     z = z_scores(est, sim)
     assert np.abs(z).max() < 4.0, np.abs(z).max()

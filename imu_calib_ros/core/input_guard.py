@@ -118,6 +118,13 @@ class GuardConfig:
         "stationary window keeping the calibration states and their covariance, or 'bridge' "
         "with inflated covariance (only if the joints did not move across the gap; else "
         "reinitialise)")
+    bridge_motion: bool = setting(
+        True, 'a gap shorter than max_gap_s while the joints turn is bridged with the rotation '
+        'the joint encoders measured across it (attitude error carried, velocity from the '
+        'fixture kinematics); False re-initialises the navigation at the next stationary window')
+    bridge_encoder_sigma_rad: float = setting(
+        1e-6, 'least one-sigma error of an encoder angle in a motion bridge (raised to the '
+        'encoder noise the alignment measured at rest)', 0.0)
     bridge_attitude_sigma_rad: float = setting(1e-4, 'attitude sigma added when bridging', 0.0)
     bridge_velocity_sigma_m_s: float = setting(1e-4, 'velocity sigma added when bridging', 0.0)
     nis_window: int = setting(50, 'measurement updates in the divergence window', 5, 100000)

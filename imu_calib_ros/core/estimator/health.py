@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..input_guard import GuardConfig, InputGuard
+from ..rotation import skew
 from .ekf import GateCounters
 from .error_model import StateLayout
 
@@ -182,6 +183,47 @@ def bridge_gap(P: FloatArray, layout: StateLayout, q1_s: FloatArray, gap_s: floa
         if grp in layout.slices:
             sl = layout.slices[grp]
             P[sl, sl] += q1_s[sl, sl] * gap_s
+
+
+def bridge_motion_covariance(P: FloatArray, layout: StateLayout, dF_enu: FloatArray,
+                             Ru_enu_m_s: FloatArray, R_enu_imu: FloatArray,
+                             omega_eb_imu_rad_s: FloatArray, var_att_rad2: float,
+                             var_vel_m2_s2: FloatArray, q1_s: FloatArray, gap_s: float
+                             ) -> FloatArray:
+    """``P`` (scaled) after a gap during motion bridged with the encoders (issue 11).
+
+    The navigator's attitude is carried across the gap by the fixture's rotation
+    ``dF_enu = R_fix(q1) R_fix(q0)^T`` (the mounting cancels), so with
+    ``R_hat = exp([psi x]) R`` the attitude error rotates with it and gains the encoder
+    increment's error: ``psi1 = dF psi0 + e``, ``e ~ N(0, var_att I)``. The velocity is set to
+    the fixture's (:func:`.measurements.zero_velocity`'s model at the first instant after the
+    gap), so its error is what makes that model's innovation zero:
+    ``dv1 = -[(R u) x] psi1 + R [omega_eb x] x_rho + n``, ``n ~ N(0, var_vel)`` (the old
+    ``dv0`` is forgotten). The biases walk over the gap (``q1_s`` per second, scaled).
+    """
+    n = layout.n
+    s = layout.scale
+    A = np.eye(n)  # attitude: rotated, every other row kept
+    A[0:3, 0:3] = dF_enu
+    Q = np.zeros((n, n))
+    Q[0:3, 0:3] = np.eye(3) * var_att_rad2
+    Si = 1.0 / s
+    P1 = (A * Si[:, None] * s[None, :]) @ P @ (A * Si[:, None] * s[None, :]).T \
+        + Q * np.outer(Si, Si)
+    V = np.eye(n)  # velocity: a function of the new attitude (and the lever arm)
+    V[3:6, 3:6] = 0.0
+    V[3:6, 0:3] = -skew(Ru_enu_m_s)
+    if 'lever_arm' in layout.slices:
+        V[3:6, layout.slices['lever_arm']] = R_enu_imu @ skew(omega_eb_imu_rad_s)
+    Vs = V * Si[:, None] * s[None, :]
+    Qv = np.zeros((n, n))
+    Qv[3:6, 3:6] = np.diag(var_vel_m2_s2) / s[3] ** 2
+    P2 = Vs @ P1 @ Vs.T + Qv
+    for grp in ('gyro_bias', 'accel_bias'):  # the bias random walk continues in the gap
+        if grp in layout.slices:
+            sl = layout.slices[grp]
+            P2[sl, sl] += q1_s[sl, sl] * gap_s
+    return 0.5 * (P2 + P2.T)
 
 
 def status(diverged: str | None, guard: InputGuard, guard_config: GuardConfig,
