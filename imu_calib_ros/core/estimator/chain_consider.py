@@ -39,11 +39,12 @@ sigma is added for them.
 """
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from .measurements import link_error_chains
 
 FloatArray = NDArray[np.float64]
 _UP = np.array([0.0, 0.0, 1.0])
@@ -58,20 +59,6 @@ def _skew(v: FloatArray) -> FloatArray:
     return S
 
 
-def last_link_directions(fixture: Any) -> FloatArray:
-    """Unit directions (k, 3) in the last joint's parent frame along which its origin error is
-    *not* a lever arm: the two perpendicular to its axis (revolute), none (prismatic)."""
-    jn = fixture.joints[-1]
-    if not jn.revolute:
-        return np.zeros((0, 3))
-    a = np.asarray(jn.axis, dtype=float)
-    if jn.origin_R is not None:
-        a = np.asarray(jn.origin_R) @ a
-    P = np.eye(3) - np.outer(a, a)
-    w, V = np.linalg.eigh(P)
-    return V[:, w > 0.5].T  # type: ignore[no-any-return]
-
-
 class ChainConsider:
     """Normal equations of the mounting and lever-arm fits over a run (module docstring);
     data only, so they survive the filter's re-alignments and restarts."""
@@ -81,17 +68,7 @@ class ChainConsider:
         n = fixture.n_joints
         # zero offsets that are not the mounting: the revolute joints before the last
         self._q_joints = [j for j in range(n - 1) if fixture.joints[j].revolute]
-        links = []
-        for j, joint in enumerate(fixture.joints):
-            if joint.origin_xyz_m is None:
-                continue
-            dirs = last_link_directions(fixture) if j == n - 1 else np.eye(3)
-            for d in dirs:
-                joints = list(fixture.joints)
-                joints[j] = dataclasses.replace(
-                    joint, origin_xyz_m=np.asarray(joint.origin_xyz_m) + _DL_M * d)
-                links.append(fixture.with_joints(tuple(joints)))
-        self._links = tuple(links)
+        self._links = link_error_chains(fixture, _DL_M)[1:]
         m_q, m_l = len(self._q_joints), len(self._links)
         self.A_mu = np.zeros((4, 4))
         self.B_mu = np.zeros((4, m_q))

@@ -61,7 +61,7 @@ class EstimatorConfig:
         1e-3, 'one sigma of the chain\'s joint zero offsets (uncalibrated arm: ~1 mrad); bounds '
         'their effect on the chain velocity and the encoder attitude measurements', 0.0)
     chain_link_sigma_m: float = setting(
-        2e-3, 'one sigma of the chain\'s link-length (joint origin) errors', 0.0)
+        2e-3, 'one sigma of the chain\'s joint-origin errors, per coordinate', 0.0)
     chain_encoder_sigma_rad: float = setting(
         1e-5, 'one sigma of the encoder noise, for the chain velocity from the joint states', 0.0)
     chain_error_correlation: float = setting(

@@ -62,7 +62,7 @@ from .health import (NisWindow, bridge_gap, bridge_motion_covariance,
                      widen_for_gaps, widen_navigation)
 from .chain_consider import ChainConsider
 from .measurements import (MEAS_SCALE, MEASUREMENT_DOF, chain_attitude_covariance,
-                           chain_velocity_covariance, encoder_attitude, lengthened_chains,
+                           chain_velocity_covariance, encoder_attitude, link_error_chains,
                            noise_covariance, to_filter_units, zero_velocity)
 from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_hint,
                     white_noise_densities, white_noise_from_window)
@@ -619,7 +619,7 @@ class CalibrationEstimator:
             return (covered, np.zeros((B, n)), np.zeros((B, n)), zeros, np.zeros((B, 3, 3)),
                     np.zeros((B, 3, 3)))
         if self._chain_fixtures is None:
-            self._chain_fixtures = lengthened_chains(self.fixture)
+            self._chain_fixtures = link_error_chains(self.fixture)
         jt = self._joints.t_ns
         dt_j = (jt[-1] - jt[0]) * 1e-9 / max(len(jt) - 1, 1) if len(jt) > 1 else 0.01
         qd_sigma = 1.5 * cfg.chain_encoder_sigma_rad / max(dt_j, 1e-4)

@@ -141,12 +141,15 @@ def chain_velocity_covariance(fixtures: tuple[Any, ...], q: FloatArray, qd: Floa
     (issue 15 item 4): what the arm's errors and the encoder noise can do to it.
 
     ``fixtures[0]`` is the nominal chain, ``fixtures[1:]`` the same chain with one joint
-    origin lengthened by 1 mm each (link-length sensitivities). Zero-offset sensitivities are
-    ``dv/dq_j`` (a zero offset is an angle error), link ones ``dv/dl_j``, both by differences
-    of ``anchor_velocity_enu_m_s`` (exactly linear in qd, so they vanish at rest); the rate
-    noise enters through ``dv/dqd_j`` for joints that move. The arm errors are systematic over
-    a move: their share is multiplied by ``correlation`` (the number of updates one error
-    spans), so that the filter, which takes updates as independent, cannot average them away.
+    origin moved by 1 mm along one coordinate each (:func:`link_error_chains`: three per
+    joint origin; along the link only, the bound was 0.57 mm/s rms over arm6's generated
+    plan where the simulated 2 mm arm errors made 1.0-1.7 mm/s). Zero-offset sensitivities
+    are ``dv/dq_j`` (a zero offset is an angle error), link ones ``dv/dl_jk``, both by
+    differences of ``anchor_velocity_enu_m_s`` (exactly linear in qd, so they vanish at
+    rest); the rate noise enters through ``dv/dqd_j`` for joints that move. The arm errors
+    are systematic over a move: their share is multiplied by ``correlation`` (the number of
+    updates one error spans), so that the filter, which takes updates as independent,
+    cannot average them away.
     """
     fx = fixtures[0]
     B, n = q.shape
@@ -187,16 +190,36 @@ def chain_attitude_covariance(fixture: Fixture, q: FloatArray, joint_offset_sigm
     return (joint_offset_sigma_rad ** 2 * correlation) * np.einsum('bni,bnj->bij', u, u)
 
 
-def lengthened_chains(fixture: Fixture, dl_m: float = 1e-3) -> tuple[Any, ...]:
-    """``(fixture, copies with joint origin j lengthened by dl_m along itself ...)`` for the
-    joints with an origin offset (:func:`chain_velocity_covariance`)."""
+def last_link_directions(fixture: Any) -> FloatArray:
+    """Unit directions (k, 3) in the last joint's parent frame along which its origin error is
+    *not* a lever arm: the two perpendicular to its axis (revolute), none (prismatic)."""
+    jn = fixture.joints[-1]
+    if not jn.revolute:
+        return np.zeros((0, 3))
+    a = np.asarray(jn.axis, dtype=float)
+    if jn.origin_R is not None:
+        a = np.asarray(jn.origin_R) @ a
+    P = np.eye(3) - np.outer(a, a)
+    w, V = np.linalg.eigh(P)
+    return V[:, w > 0.5].T  # type: ignore[no-any-return]
+
+
+def link_error_chains(fixture: Fixture, dl_m: float = 1e-3) -> tuple[Any, ...]:
+    """``(fixture, copies with one joint origin moved by dl_m along one coordinate ...)``:
+    every joint with an origin, along the three axes of its parent frame (an uncalibrated
+    arm's origin errors are per coordinate, ``fixture.perturbed_chain``), the last joint only
+    along :func:`last_link_directions` (the rest of its origin error is a lever arm, a state).
+    The link sensitivities of :func:`chain_velocity_covariance` and
+    :class:`.chain_consider.ChainConsider`."""
     from dataclasses import replace
     out = [fixture]
+    n = fixture.n_joints
     for j, joint in enumerate(fixture.joints):
-        xyz = joint.origin_xyz_m
-        if xyz is None:
+        if joint.origin_xyz_m is None:
             continue
-        joints = list(fixture.joints)
-        joints[j] = replace(joint, origin_xyz_m=xyz * (1.0 + dl_m / float(np.linalg.norm(xyz))))
-        out.append(fixture.with_joints(tuple(joints)))
+        dirs = last_link_directions(fixture) if j == n - 1 else np.eye(3)
+        for d in dirs:
+            joints = list(fixture.joints)
+            joints[j] = replace(joint, origin_xyz_m=np.asarray(joint.origin_xyz_m) + dl_m * d)
+            out.append(fixture.with_joints(tuple(joints)))
     return tuple(out)
