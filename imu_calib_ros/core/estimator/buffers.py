@@ -198,8 +198,11 @@ class JointBuffer:
         travel = np.abs(jq[i0:i1 + 1] - jq[i0]).max()
         return bool(travel <= tol_rad)
 
-    def positions_at(self, t_ns: IntArray) -> tuple[NDArray[np.bool_], FloatArray | None]:
-        """Joint positions at the instants ``t_ns`` (increasing; the buffer not empty).
+    def positions_at(self, t_ns: IntArray, holes: bool = False
+                     ) -> tuple[NDArray[np.bool_], FloatArray | None]:
+        """Joint positions at the instants ``t_ns`` (increasing; the buffer not empty);
+        ``holes``: also inside holes of the joint record (a motion bridge, which widens its
+        covariance by :meth:`spline_error_at` there).
 
         Returns
         -------
@@ -222,7 +225,7 @@ class JointBuffer:
         j1 = bisect.bisect_left(self.t_ns, int(t_in[-1])) + 3
         jt = np.array(self.t_ns[j0:j1], np.int64)
         jq = np.array(self.q_rad[j0:j1])
-        if len(jt) > 2:
+        if len(jt) > 2 and not holes:
             spacing = np.diff(jt)
             k = np.clip(np.searchsorted(jt, t_ns, side='right'), 1, len(jt) - 1)
             covered &= spacing[k - 1] <= JOINT_HOLE_PERIODS * np.median(spacing)
@@ -235,11 +238,13 @@ class JointBuffer:
 
     def spline_error_at(self, t_ns: IntArray) -> FloatArray:
         """An estimate of the error of :meth:`positions_at` at the instants ``t_ns`` (covered
-        ones), per joint [rad]: a quarter of the difference between the cubic spline through
-        every sample and the one through every other sample (the error of a cubic spline
-        falls with the spacing as h^2 at a kink of the acceleration, h^4 where the motion is
-        smooth: the full spline's error is at most a quarter of the coarse one's). Read from
-        the 16 samples around each instant."""
+        ones), per joint [rad]: half the difference between the cubic spline through every
+        sample and the one through every other sample (the error of a cubic spline falls
+        with the spacing as h^2 at a kink of the acceleration, h^4 where the motion is
+        smooth); inside a hole of the joint record (:data:`JOINT_HOLE_PERIODS`) twice the
+        difference. On a trapezoidal move at 10-100 Hz, with and without a hole of 5 lost
+        samples, the rms of the true error is 0.06-0.6 of the rms of this estimate (never
+        above it: test_joint_buffer.py). Read from the 16 samples around each instant."""
         from scipy.interpolate import CubicSpline
         jt = np.array(self.t_ns, np.int64)
         jq = np.array(self.q_rad)
@@ -253,7 +258,10 @@ class JointBuffer:
             qs = jq[lo:hi]
             full = CubicSpline(ts, qs, axis=0)(0.0)
             half = [CubicSpline(ts[i::2], qs[i::2], axis=0)(0.0) for i in (0, 1)]
-            err[b] = np.max(np.abs(np.array(half) - full), axis=0) / 4.0
+            spacing = np.diff(ts)
+            j = min(max(int(np.searchsorted(ts, 0.0)), 1), len(ts) - 1)
+            hole = spacing[j - 1] > JOINT_HOLE_PERIODS * np.median(spacing)
+            err[b] = np.max(np.abs(np.array(half) - full), axis=0) * (2.0 if hole else 0.5)
         return err
 
     def motion_at(self, t_ns: IntArray, still_tol_rad: float,

@@ -1005,14 +1005,26 @@ class CalibrationEstimator:
         """
         if not self._running or self._filter is None:
             return
+        cfg = self.guard_config
+        period_ns = int(round(self._nominal_dt * 1e9))
+        can_bridge = (cfg.bridge_motion and not long and w_after is not None
+                      and f_after is not None and period_ns > 0)
+        if self._pending_bridge is not None and not self._joints_beyond(
+                self._pending_bridge[1]) and can_bridge:
+            # another gap before the joint states of the pending bridge came (a 2 kHz IMU
+            # with jittered stamps): one bridge over both, the samples between them dropped
+            assert w_after is not None and f_after is not None
+            self.counters['imu_dropped_at_gap'] += self._imu.drop_all()
+            self._pending_bridge = (self._pending_bridge[0], t_after_ns - period_ns,
+                                    t_after_ns, w_after.copy(), f_after.copy())
+            return
         self._process(final=True)
         self._check_divergence()
         if self._diverged is not None or self._filter is None:
             return
-        cfg = self.guard_config
         still = cfg.gap_policy == 'bridge' and self._joints.still_between(
             t_before_ns, t_after_ns, self.config.stationary_joint_tolerance_rad)
-        if not still and cfg.bridge_motion and not long:
+        if not still and can_bridge:
             self._propagate_rest()  # to the gap: the bridge starts there
         left = self._imu.drop_all()
         if left:
@@ -1023,10 +1035,8 @@ class CalibrationEstimator:
             bridge_gap(self._filter.P, self.layout, q1_s, (t_after_ns - t_before_ns) * 1e-9, cfg)
             self.counters['gaps_bridged'] += 1
             return
-        period_ns = int(round(self._nominal_dt * 1e9))
-        if (cfg.bridge_motion and not long and w_after is not None and f_after is not None
-                and self._t_last_ns is not None and period_ns > 0
-                and t_after_ns - period_ns > self._t_last_ns):
+        if (can_bridge and w_after is not None and f_after is not None
+                and self._t_last_ns is not None and t_after_ns - period_ns > self._t_last_ns):
             # the navigator is at the last processed chunk end; the sample after the gap
             # integrates over its own nominal period
             self._pending_bridge = (self._t_last_ns, t_after_ns - period_ns, t_after_ns,
@@ -1063,6 +1073,14 @@ class CalibrationEstimator:
         self.counters['imu_processed'] += m
         self._imu.drop_all()
 
+    def _joints_beyond(self, t_ns: int) -> bool:
+        """Whether joint states reach two of their mean spacings beyond ``t_ns``."""
+        jt = self._joints.t_ns
+        if not jt:
+            return False
+        spacing = (jt[-1] - jt[0]) / max(len(jt) - 1, 1)
+        return bool(jt[-1] >= t_ns + 2 * spacing)
+
     def _bridge_motion(self, final: bool) -> bool:
         """Carry the navigation across the pending gap in motion (:meth:`_on_gap`) with the
         fixture rotation the encoders measured between the navigator's last instant ``t0`` and
@@ -1073,14 +1091,12 @@ class CalibrationEstimator:
         encoder noise at rest, plus what the spline can miss there
         (:meth:`.buffers.JointBuffer.spline_error_at`). Waits (returns False) until joint
         states beyond ``t1`` are there; re-initialises when they do not come (or at the end
-        of the data), or when the joint record has a hole at either end. Returns whether the
+        of the data), or when the joint record does not cover both ends. Returns whether the
         filter runs on.
         """
         assert self._pending_bridge is not None
         t0, t1, t_after, w1, f1 = self._pending_bridge
-        jt = self._joints.t_ns
-        spacing = (jt[-1] - jt[0]) / max(len(jt) - 1, 1) if len(jt) > 1 else 0
-        if not jt or jt[-1] < t1 + 2 * spacing:  # the joint states beyond t1 not there yet
+        if not self._joints_beyond(t1):  # the joint states beyond t1 not there yet
             t_imu = self._imu.last_stamp_ns
             waited = 0 if t_imu is None else t_imu - t_after
             if not final and waited < self.config.max_pending_s * 1e9:
@@ -1088,7 +1104,7 @@ class CalibrationEstimator:
             self._reinitialise_at(t_after)
             return False
         self._pending_bridge = None
-        covered, q = self._joints.positions_at(np.array([t0, t1], np.int64))
+        covered, q = self._joints.positions_at(np.array([t0, t1], np.int64), holes=True)
         chain = None if self.fixture.concurrent else self._chain_motion(
             np.array([t1], np.int64))
         if q is None or not covered.all() or (chain is not None and not chain[0][0]):
