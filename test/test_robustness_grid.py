@@ -128,3 +128,25 @@ def test_point_samples_declared_with_dropped_samples(tmp_path: Path, capsys) -> 
     assert abs(worst.z) < 4.0, worst
     # declared point samples: no half-period latency to take up
     assert abs(calib['imu_calibration']['estimator']['coarse_start']['joint_latency_s']) < 2e-4
+
+
+def test_dropped_messages_during_turns_are_bridged(tmp_path: Path, capsys) -> None:
+    """A driver that drops 2 % of the IMU messages and 5 % of the joint states in bursts of
+    ~5 (a tactical unit at 200 Hz): every gap during a turn is carried across with the
+    encoders. Re-initialising at each of them (the handling before) lost 43 % of this
+    recording in 16 re-alignments; on the robustness grid's longer plans more than half,
+    and the self-check refused 7 of 75 runs."""
+    bag, truth = make_case(tmp_path, unit='tactical', size=1.0, mount_deg=3.0,
+                           imu_rate_hz=200.0, drop_fraction_imu=0.02,
+                           drop_fraction_joint=0.05, seed=11)
+    out = tmp_path / 'calib.yaml'
+    _replay(bag, truth.fixture_path, out, capsys)
+    calib = yaml.safe_load(out.read_text())
+    rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
+    worst = max(rows, key=lambda r: abs(r.z))
+    assert abs(worst.z) < 4.0, worst
+    health = calib['imu_calibration']['estimator']['health']
+    assert health['gaps_bridged_in_motion'] > 20, health
+    assert health['gaps_reinitialised'] == 0, health
+    lost = calib['imu_calibration']['provenance']['self_check']['checks']['input.lost']
+    assert lost['value'] < 0.05, lost  # the gaps themselves (~2 %), nothing more
