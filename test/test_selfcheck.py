@@ -324,10 +324,10 @@ def test_nis_accounting_covers_every_filter_of_the_run(tmp_path: Path) -> None:
     from imu_calib_ros.core.estimator.replay import replay_run
     from imu_calib_ros.core.fixture import load_fixture
     from msg_adapters.bag import iter_bag
-    # bursts of ~70 samples (0.7 s at 100 Hz): longer than interpolate_gap_s, so a gap
-    # during a move re-initialises the navigation
+    # bursts of ~150 samples (1.5 s at 100 Hz): longer than max_gap_s, so a gap during a move
+    # re-initialises the navigation (a shorter one is carried across with the encoders)
     bag, truth = make_case(tmp_path, unit='nav', seed=2, drop_fraction_imu=0.1,
-                           drop_burst_mean=70.0)
+                           drop_burst_mean=150.0)
     run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None,
                      load_estimator_config(None))
     est = run.estimator
