@@ -97,18 +97,18 @@ class NavBatch:
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row-wise cross product of (N,3) arrays (b may be (3,)).
+    """Row-wise cross product of (N,3) arrays (either may be (3,)).
 
-    Written out: np.cross costs ~70 us of axis handling per call, which dominates small
-    batches.
+    Written out (``a1 b2 - a2 b1``, ...) on the components taken in cyclic order: np.cross
+    costs ~70 us of axis handling per call, which dominates small batches.
     """
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
+    return (a.take(_NEXT, axis=-1) * b.take(_PREV, axis=-1)  # type: ignore[no-any-return]
+            - a.take(_PREV, axis=-1) * b.take(_NEXT, axis=-1))
+
+
+#: the next and the previous component of each (cyclic order), for :func:`_cross`
+_NEXT = np.array([1, 2, 0])
+_PREV = np.array([2, 0, 1])
 
 
 #: ``p * q = L(p) q``: the entries of ``L(p)`` (row-major 4 x 4) as components of ``p`` and
@@ -133,13 +133,15 @@ def _rotation_coefficients(theta2: FloatArray) -> tuple[FloatArray, FloatArray]:
     Savage part 2, eq. 11 (``t = |dtheta|``, from ``theta2 = t^2``). Series below 0.1 rad
     (next terms < 3e-16), where the closed forms lose digits to cancellation.
     """
+    a1 = 0.5 - theta2 / 24.0 * (1.0 - theta2 / 30.0 * (1.0 - theta2 / 56.0))
+    a2 = (1.0 - theta2 / 20.0 * (1.0 - theta2 / 42.0 * (1.0 - theta2 / 72.0))) / 6.0
+    if theta2.size and theta2.max() < 0.01:  # all below 0.1 rad (any rate below 20 rad/s
+        return a1, a2                       # at 200 Hz): the series alone
     t = np.sqrt(theta2)
     small = t < 0.1
     ts = np.where(small, 1.0, t)
-    a1 = np.where(small, 0.5 - theta2 / 24.0 * (1.0 - theta2 / 30.0 * (1.0 - theta2 / 56.0)),
-                  2.0 * np.sin(0.5 * ts) ** 2 / ts ** 2)
-    a2 = np.where(small, (1.0 - theta2 / 20.0 * (1.0 - theta2 / 42.0 * (1.0 - theta2 / 72.0)))
-                  / 6.0, (ts - np.sin(ts)) / ts ** 3)
+    a1 = np.where(small, a1, 2.0 * np.sin(0.5 * ts) ** 2 / ts ** 2)
+    a2 = np.where(small, a2, (ts - np.sin(ts)) / ts ** 3)
     return a1, a2
 
 
