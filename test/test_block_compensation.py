@@ -48,3 +48,23 @@ def test_block_compensation_refuses_what_does_not_converge() -> None:
     w, _, f = random_motion(rng, 50)
     with pytest.raises(ImplausibleErrors):
         BlockCompensation.of(e).rates(w, f)
+
+
+def test_compensation_inverses_are_those_of_the_jacobians_matrices() -> None:
+    """error_model.compensation_inverses: D_g^-1 by sign pattern (the same bits as one LAPACK
+    inverse per sample, zero rates included) and D_a^-1 by its adjugate (to rounding)."""
+    from imu_calib_ros.core.estimator.error_model import compensation_inverses
+    rng = np.random.default_rng(4)
+    e = mems_errors(rng)
+    w, _, f = random_motion(rng, 200)
+    w[5] = 0.0
+    w[7, 1] = 0.0
+    Dg_inv, Da_inv = compensation_inverses(e, w, f)
+    eye = np.eye(3)
+    Dg = eye + e.gyro_scale_misalignment + np.einsum(
+        'ni,ij->nij', e.gyro_scale_asymmetry * np.sign(w), eye)
+    Da = eye + e.accel_scale_misalignment + np.einsum(
+        'ni,ij->nij', e.accel_scale_asymmetry * np.sign(f)
+        + 2 * e.accel_quadratic_per_m_s2 * f, eye)
+    assert np.array_equal(Dg_inv, np.linalg.inv(Dg))
+    np.testing.assert_allclose(Da_inv, np.linalg.inv(Da), rtol=0, atol=1e-15)

@@ -13,7 +13,9 @@ vectorised:
    differences of the specific force;
 3. ``Strapdown.propagate`` over the whole block;
 4. every chunk's 6 navigation rows of ``Phi`` (:func:`~.ekf.chunk_transition_rows`, with
-   the sensor Jacobians of the compensated samples), scaled to the filter's units.
+   the sensor Jacobians of the compensated samples, ``D^-1 M`` of
+   :func:`~.error_model.compensated_jacobians` applied through the rows' left factors),
+   scaled to the filter's units.
 """
 from __future__ import annotations
 
@@ -293,12 +295,15 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     out = nav.propagate(dt, w_c[:m], f_c[:m])
     R_mid = 0.5 * (np.concatenate([R_start[None], out.R_enu_imu[:-1]]) + out.R_enu_imu)
     # sensor Jacobians on the compensated samples
-    Mg, Ma = em.compensated_jacobians(errors, w_c[:m], wd, f_c[:m], fd)
+    Mg = em.gyro_jacobian(w_c[:m], f_c[:m])
+    Ma = em.accel_jacobian(w_c[:m], wd, f_c[:m], fd)
+    Dg_inv, Da_inv = em.compensation_inverses(errors, w_c[:m], f_c[:m])
     rows = chunk_transition_rows(layout, R_mid.reshape(B, n, 3, 3),
                                  out.f_enu_m_s2.reshape(B, n, 3),
                                  Mg.reshape(B, n, 3, em.N_GYRO),
                                  Ma.reshape(B, n, 3, em.N_ACCEL), dt.reshape(B, n),
-                                 omega_ie_enu_rad_s)
+                                 omega_ie_enu_rad_s, Dg_inv.reshape(B, n, 3, 3),
+                                 Da_inv.reshape(B, n, 3, 3))
     s = layout.scale
     rows_s = rows * (s[None, None, :] / s[None, 0:6, None])
     ends = np.arange(n - 1, m, n)
