@@ -17,6 +17,7 @@ Savage's MARS symmetric misalignment): with compensated rates ``omega_hat`` and 
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -176,15 +177,21 @@ class StateLayout:
 
     def labels(self) -> list[str]:
         """One readable label per state, e.g. ``'gyro_scale[1]'``."""
-        out = ['psi[0]', 'psi[1]', 'psi[2]', 'dv[0]', 'dv[1]', 'dv[2]']
-        for name in self.groups:
-            out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
-        return out
+        return list(_labels(self.groups))
 
     @property
     def state_labels(self) -> tuple[str, ...]:
         """The labels of the calibration states (:meth:`labels` without psi and dv)."""
-        return tuple(self.labels()[6:])
+        return _labels(self.groups)[6:]
+
+
+@functools.lru_cache(maxsize=64)
+def _labels(groups: tuple[str, ...]) -> tuple[str, ...]:
+    """:meth:`StateLayout.labels` of ``groups`` (read after every block: built once)."""
+    out = ['psi[0]', 'psi[1]', 'psi[2]', 'dv[0]', 'dv[1]', 'dv[2]']
+    for name in groups:
+        out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
+    return tuple(out)
 
 
 # --- SensorErrors <-> flat parameter vectors ---------------------------------------------

@@ -88,8 +88,9 @@ class BlockCompensation:
         """The constants of a :class:`~imu_calib_ros.core.sensor_model.SensorErrors`."""
         G = np.asarray(errors.gyro_g_sensitivity_rad_s_per_m_s2, float)
         r = np.asarray(errors.size_effect_m, float)
-        return cls(np.linalg.inv(np.eye(3) + errors.gyro_scale_misalignment),
-                   np.linalg.inv(np.eye(3) + errors.accel_scale_misalignment),
+        ig, ia = np.linalg.inv(np.eye(3) + np.stack([errors.gyro_scale_misalignment,
+                                                     errors.accel_scale_misalignment]))
+        return cls(ig, ia,
                    np.reshape(errors.gyro_bias_rad_s, (3, 1)),
                    np.reshape(errors.accel_bias_m_s2, (3, 1)),
                    G if np.any(G != 0.0) else None,
@@ -283,7 +284,7 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     w, f = w[:m + 1], f[:m + 1]
     if comp is not None:
         w_c3, f_c3 = comp.samples(w, f, wd_all.T, rates[:, h:h + m + 1])
-        w_c, f_c = w_c3.T, f_c3.T
+        w_c, f_c = np.ascontiguousarray(w_c3.T), np.ascontiguousarray(f_c3.T)
     else:
         w_c, f_c = sm.compensate(errors, w, f, wd_all)
     if time_offset_s != 0.0:
