@@ -46,7 +46,7 @@ def test_block_compensation_refuses_what_does_not_converge() -> None:
     v[9:12] = 1.5  # gyro asymmetry 150 %: no contraction
     e = SensorErrors.from_vector(v)
     w, _, f = random_motion(rng, 50)
-    with pytest.raises(ImplausibleErrors):
+    with pytest.raises(ImplausibleErrors), np.errstate(over='ignore', invalid='ignore'):
         BlockCompensation.of(e).rates(w, f)
 
 
