@@ -66,7 +66,7 @@ class BlockCompensation:
     relative change of the whole block is a few ulps (``compensate`` stops each sample on its
     own, in per-component arithmetic that gives a sample the same bits alone or in a batch:
     what the compensator node needs, at five times the numpy calls). The results agree with
-    ``compensate`` to rounding (< 1e-15 relative, ``test_propagation_span``). Without a
+    ``compensate`` to rounding (1e-15 of the largest value, ``test_block_compensation``). Without a
     g-sensitivity (``G = 0``) the rates do not depend on the specific force: they are iterated
     alone, once for the block and its margins, and the specific force with the rates fixed.
     Inputs must be finite (:func:`propagate_block` falls back to ``compensate`` otherwise).
