@@ -158,3 +158,22 @@ def test_transition_rows_are_the_rows_of_the_full_matrix() -> None:
     ref = np.einsum('bnij,bnjp->bip', skew(f) * dt[..., None, None], cum)
     np.testing.assert_allclose(rows[:, 3:6, lay.gyro_state_idx], ref, rtol=0,
                                atol=1e-13 * np.abs(ref).max())
+
+
+def test_transition_rows_with_the_compensation_inverses_on_the_left() -> None:
+    """``chunk_transition_rows(..., M, ..., D_g^-1, D_a^-1)`` (what propagate_block passes)
+    equals the rows of the compensated Jacobians ``D^-1 M`` to rounding."""
+    rng = np.random.default_rng(5)
+    lay = em.StateLayout.build(ALL)
+    B, m = 3, 7
+    R = rotvec_to_matrix(rng.normal(size=(B * m, 3))).reshape(B, m, 3, 3)
+    f = rng.normal(size=(B, m, 3)) + [0.0, 0.0, 9.8]
+    Mg = rng.normal(size=(B, m, 3, em.N_GYRO))
+    Ma = rng.normal(size=(B, m, 3, em.N_ACCEL))
+    Dg_inv = np.eye(3) + 1e-3 * rng.normal(size=(B, m, 3, 3))
+    Da_inv = np.eye(3) + 1e-3 * rng.normal(size=(B, m, 3, 3))
+    dt = np.full((B, m), 0.005)
+    om = np.array([0.0, 5e-5, 5e-5])
+    ref = chunk_transition_rows(lay, R, f, Dg_inv @ Mg, Da_inv @ Ma, dt, om)
+    rows = chunk_transition_rows(lay, R, f, Mg, Ma, dt, om, Dg_inv, Da_inv)
+    np.testing.assert_allclose(rows, ref, rtol=0, atol=1e-14 * np.abs(ref).max())

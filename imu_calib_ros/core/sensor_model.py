@@ -110,18 +110,23 @@ class SensorErrors:
     size_effect_m: FloatArray  # (3, 3) row i = r_i, zero diagonal
 
     def __post_init__(self) -> None:
+        arrays = []
         for key, name, shape, _ in _LAYOUT:
             a = np.array(getattr(self, name), dtype=float)
             if a.shape != shape:
                 raise ValueError(f'{name} ({key}) must have shape {shape}, got {a.shape}')
-            if not np.all(np.isfinite(a)):
+            arrays.append(a)
+        # one test for all (the estimator builds an instance after every block), then which
+        finite = np.isfinite(np.concatenate([a.ravel() for a in arrays])).all()
+        for (key, name, _, _), a in zip(_LAYOUT, arrays, strict=True):
+            if not finite and not np.isfinite(a).all():
                 raise ValueError(f'{name} ({key}) has non-finite values')
             a.setflags(write=False)
             object.__setattr__(self, name, a)
         kg = self.gyro_scale_misalignment
-        if np.max(np.abs(kg - kg.T)) > SYMMETRY_TOLERANCE:
+        if abs(kg - kg.T).max() > SYMMETRY_TOLERANCE:
             raise ValueError('gyro_scale_misalignment (Kg) must be symmetric (CONTRACT 3)')
-        if np.any(np.diag(self.size_effect_m) != 0.0):
+        if self.size_effect_m.diagonal().any():
             raise ValueError('size_effect_m must have a zero diagonal (r_i[i] = 0)')
 
     # ------------------------------------------------------------------ construction

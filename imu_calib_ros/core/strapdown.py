@@ -54,6 +54,7 @@ errors in the IMU frame, estimate minus truth)::
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,18 +98,18 @@ class NavBatch:
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row-wise cross product of (N,3) arrays (b may be (3,)).
+    """Row-wise cross product of (N,3) arrays (either may be (3,)).
 
-    Written out: np.cross costs ~70 us of axis handling per call, which dominates small
-    batches.
+    Written out (``a1 b2 - a2 b1``, ...) on the components taken in cyclic order: np.cross
+    costs ~70 us of axis handling per call, which dominates small batches.
     """
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
+    return (a.take(_NEXT, axis=-1) * b.take(_PREV, axis=-1)  # type: ignore[no-any-return]
+            - a.take(_PREV, axis=-1) * b.take(_NEXT, axis=-1))
+
+
+#: the next and the previous component of each (cyclic order), for :func:`_cross`
+_NEXT = np.array([1, 2, 0])
+_PREV = np.array([2, 0, 1])
 
 
 #: ``p * q = L(p) q``: the entries of ``L(p)`` (row-major 4 x 4) as components of ``p`` and
@@ -133,13 +134,15 @@ def _rotation_coefficients(theta2: FloatArray) -> tuple[FloatArray, FloatArray]:
     Savage part 2, eq. 11 (``t = |dtheta|``, from ``theta2 = t^2``). Series below 0.1 rad
     (next terms < 3e-16), where the closed forms lose digits to cancellation.
     """
+    a1 = 0.5 - theta2 / 24.0 * (1.0 - theta2 / 30.0 * (1.0 - theta2 / 56.0))
+    a2 = (1.0 - theta2 / 20.0 * (1.0 - theta2 / 42.0 * (1.0 - theta2 / 72.0))) / 6.0
+    if theta2.size and theta2.max() < 0.01:  # all below 0.1 rad (any rate below 20 rad/s
+        return a1, a2                       # at 200 Hz): the series alone
     t = np.sqrt(theta2)
     small = t < 0.1
     ts = np.where(small, 1.0, t)
-    a1 = np.where(small, 0.5 - theta2 / 24.0 * (1.0 - theta2 / 30.0 * (1.0 - theta2 / 56.0)),
-                  2.0 * np.sin(0.5 * ts) ** 2 / ts ** 2)
-    a2 = np.where(small, (1.0 - theta2 / 20.0 * (1.0 - theta2 / 42.0 * (1.0 - theta2 / 72.0)))
-                  / 6.0, (ts - np.sin(ts)) / ts ** 3)
+    a1 = np.where(small, a1, 2.0 * np.sin(0.5 * ts) ** 2 / ts ** 2)
+    a2 = np.where(small, a2, (ts - np.sin(ts)) / ts ** 3)
     return a1, a2
 
 
@@ -169,11 +172,40 @@ def _rotate_about_axis(axis: FloatArray, angle_rad: FloatArray, x: FloatArray) -
     return x * c + _cross(axis, x) * s + axis * (x @ axis)[:, None] * (1.0 - c)
 
 
-def _rotate_by_quat(q: FloatArray, x: FloatArray) -> FloatArray:
-    """Rotate vectors ``x (N,3)`` by unit quaternions ``q (N,4)`` (x, y, z, w)."""
-    u = q[:, :3]
-    t = 2.0 * _cross(u, x)
-    return x + q[:, 3:4] * t + _cross(u, t)
+def _quat_to_matrix(q: FloatArray) -> FloatArray:
+    """The rotation matrix of one quaternion (x, y, z, w), normalised first (scipy's
+    ``Rotation.from_quat(q).as_matrix()`` in Python floats: a tenth of its time)."""
+    x, y, z, w = (float(c) for c in q)
+    r = math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / r, y / r, z / r, w / r
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    return np.array([[x2 - y2 - z2 + w2, 2.0 * (xy - zw), 2.0 * (xz + yw)],
+                     [2.0 * (xy + zw), -x2 + y2 - z2 + w2, 2.0 * (yz - xw)],
+                     [2.0 * (xz - yw), 2.0 * (yz + xw), -x2 - y2 + z2 + w2]])
+
+
+def _rotvec_to_quat(v: FloatArray) -> tuple[float, float, float, float]:
+    """The quaternion (x, y, z, w) of one rotation vector (scipy's ``from_rotvec``: series
+    of ``sin(a / 2) / a`` below 1e-3 rad), in Python floats."""
+    x, y, z = (float(c) for c in v)
+    a = math.sqrt(x * x + y * y + z * z)
+    if a <= 1e-3:
+        a2 = a * a
+        k = 0.5 - a2 / 48.0 + a2 * a2 / 3840.0
+    else:
+        k = math.sin(0.5 * a) / a
+    return k * x, k * y, k * z, math.cos(0.5 * a)
+
+
+def _quat_mul_normalised(p: tuple[float, float, float, float], q: FloatArray) -> FloatArray:
+    """``p * q`` (Hamilton, x, y, z, w), normalised to unit length."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = (float(c) for c in q)
+    out = (pw * qx + px * qw + py * qz - pz * qy, pw * qy - px * qz + py * qw + pz * qx,
+           pw * qz + px * qy - py * qx + pz * qw, pw * qw - px * qx - py * qy - pz * qz)
+    r = math.sqrt(sum(c * c for c in out))
+    return np.array([c / r for c in out])
 
 
 class Strapdown:
@@ -235,7 +267,7 @@ class Strapdown:
     @property
     def R_enu_imu(self) -> FloatArray:
         """Current attitude, shape (3, 3)."""
-        return Rotation.from_quat(self._q).as_matrix()
+        return _quat_to_matrix(self._q)
 
     @property
     def q_enu_imu(self) -> FloatArray:
@@ -259,11 +291,6 @@ class Strapdown:
         self._prev_dt = 0.0
         self._prev_omega_ie_imu = np.zeros(3)
 
-    def _R_T_omega_ie(self) -> FloatArray:
-        """Earth rate in the IMU frame at the current attitude, shape (1, 3)."""
-        q = self._q[None, :] * np.array([-1.0, -1.0, -1.0, 1.0])
-        return _rotate_by_quat(q, self._omega_ie_enu[None, :])
-
     # ------------------------------------------------------------- feedback
     def correct(self, dtheta_enu: ArrayLike, dv_enu: ArrayLike = (0.0, 0.0, 0.0),
                 dp_enu: ArrayLike = (0.0, 0.0, 0.0)) -> None:
@@ -281,9 +308,7 @@ class Strapdown:
             Position error [m].
         """
         dth = np.asarray(dtheta_enu, dtype=float).reshape(3)
-        dq = Rotation.from_rotvec(-dth).as_quat()
-        q = _qmul(dq, self._q)
-        self._q = q / np.linalg.norm(q)
+        self._q = _quat_mul_normalised(_rotvec_to_quat(-dth), self._q)
         self._v = self._v - np.asarray(dv_enu, dtype=float).reshape(3)
         self._p = self._p - np.asarray(dp_enu, dtype=float).reshape(3)
 
@@ -357,10 +382,10 @@ class Strapdown:
         # w - C(t)^T R_{k-1}^T omega_ie (C: body turn since t_{k-1}); the earth-rate part is
         # averaged over the interval from its ends (R_k^T omega_ie = C(dt)^T R_{k-1}^T omega_ie)
         # to O((w dt)^2), so the rotation and sculling terms need no separate earth term.
-        q_start = np.vstack([self._q, q[:-1]])
-        conj = np.array([-1.0, -1.0, -1.0, 1.0])
-        omega_ie_end = _rotate_by_quat(q * conj, np.broadcast_to(self._omega_ie_enu, (n, 3)))
-        omega_ie_start = np.vstack([self._R_T_omega_ie(), omega_ie_end[:-1]])
+        R = Rotation.from_quat(q).as_matrix()
+        R_start = np.concatenate([_quat_to_matrix(self._q)[None], R[:-1]])
+        omega_ie_end = self._omega_ie_enu @ R  # R_k^T omega_ie
+        omega_ie_start = np.vstack([self._omega_ie_enu @ R_start[0], omega_ie_end[:-1]])
         omega_ie_imu = 0.5 * (omega_ie_start + omega_ie_end)
         if self._prev_gyro is None:
             omega_ie_prev = np.vstack([omega_ie_imu[:1], omega_ie_imu[:-1]])
@@ -373,7 +398,7 @@ class Strapdown:
         th_x_dv = _cross(dtheta, dv)
         a1, a2 = _rotation_coefficients(np.einsum('ij,ij->i', dtheta, dtheta))
         dv_body = dv + a1[:, None] * th_x_dv + a2[:, None] * _cross(dtheta, th_x_dv) + scul
-        dv_enu = _rotate_by_quat(q_start, dv_body)
+        dv_enu = (R_start @ dv_body[:, :, None])[:, :, 0]
         f_enu = dv_enu / dt[:, None]
 
         # velocity: v_k = C(dt_k) v_{k-1} + C(dt_k / 2) b_k with C(t) = exp(-2 omega_ie t)
@@ -395,4 +420,4 @@ class Strapdown:
         self._prev_accel = f[-1].copy()
         self._prev_dt = float(dt[-1])
         self._prev_omega_ie_imu = omega_ie_imu[-1].copy()
-        return NavBatch(Rotation.from_quat(q).as_matrix(), q, v, p, f_enu)
+        return NavBatch(R, q, v, p, f_enu)

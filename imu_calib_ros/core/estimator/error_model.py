@@ -17,6 +17,7 @@ Savage's MARS symmetric misalignment): with compensated rates ``omega_hat`` and 
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -176,15 +177,21 @@ class StateLayout:
 
     def labels(self) -> list[str]:
         """One readable label per state, e.g. ``'gyro_scale[1]'``."""
-        out = ['psi[0]', 'psi[1]', 'psi[2]', 'dv[0]', 'dv[1]', 'dv[2]']
-        for name in self.groups:
-            out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
-        return out
+        return list(_labels(self.groups))
 
     @property
     def state_labels(self) -> tuple[str, ...]:
         """The labels of the calibration states (:meth:`labels` without psi and dv)."""
-        return tuple(self.labels()[6:])
+        return _labels(self.groups)[6:]
+
+
+@functools.lru_cache(maxsize=64)
+def _labels(groups: tuple[str, ...]) -> tuple[str, ...]:
+    """:meth:`StateLayout.labels` of ``groups`` (read after every block: built once)."""
+    out = ['psi[0]', 'psi[1]', 'psi[2]', 'dv[0]', 'dv[1]', 'dv[2]']
+    for name in groups:
+        out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
+    return tuple(out)
 
 
 # --- SensorErrors <-> flat parameter vectors ---------------------------------------------
@@ -243,6 +250,52 @@ def accel_cols(name: str) -> slice:
     return _ACCEL_COLS[name]
 
 
+#: every sign pattern of a 3-vector (-1, 0, +1 per component), pattern ``k`` at
+#: ``k = sum_i (sign_i + 1) 3^(2 - i)`` (:func:`compensation_inverses`)
+_SIGN_PATTERNS = np.array([[a, b, c] for a in (-1., 0., 1.) for b in (-1., 0., 1.)
+                           for c in (-1., 0., 1.)])
+_PATTERN_WEIGHTS = np.array([9.0, 3.0, 1.0])
+
+
+def compensation_inverses(errors: object, omega_hat: FloatArray, f_hat: FloatArray
+                          ) -> tuple[FloatArray, FloatArray]:
+    """``D_g^-1`` and ``D_a^-1`` of :func:`compensated_jacobians`, ``(N, 3, 3)`` each
+    (``J = D^-1 M``).
+
+    ``D_g = I + Kg + diag(ag sign omega)`` takes one of 27 values (the sign patterns): those
+    are inverted (the same matrices and LAPACK calls as one per sample, so the same bits) and
+    picked per sample. ``D_a = I + Ka + diag(aa sign f + 2 qa f)`` varies with ``f``: its
+    adjugate over its determinant, with the constant off-diagonal entries as scalars (to
+    rounding what ``numpy.linalg.inv`` gives, at a third of its cost on 200 samples).
+    """
+    kg = np.asarray(errors.gyro_scale_misalignment)  # type: ignore[attr-defined]
+    ka = np.asarray(errors.accel_scale_misalignment)  # type: ignore[attr-defined]
+    ag = np.asarray(errors.gyro_scale_asymmetry)  # type: ignore[attr-defined]
+    aa = np.asarray(errors.accel_scale_asymmetry)  # type: ignore[attr-defined]
+    qa = np.asarray(errors.accel_quadratic_per_m_s2)  # type: ignore[attr-defined]
+    sg = np.sign(omega_hat)
+    Dg = np.eye(3) + kg + np.einsum('ni,ij->nij', ag * _SIGN_PATTERNS, np.eye(3))
+    Dg_inv = np.linalg.inv(Dg)[((sg + 1.0) @ _PATTERN_WEIGHTS).astype(np.intp)]
+    A = np.eye(3) + ka
+    d = (A.diagonal() + (aa * np.sign(f_hat) + 2 * qa * f_hat)).T  # (3, N) diagonal of D_a
+    (_, a01, a02), (a10, _, a12), (a20, a21, _) = A.tolist()
+    x0, x1, x2 = d
+    Da_inv = np.empty((len(f_hat), 3, 3))
+    c = Da_inv.reshape(-1, 9).T  # the nine entries, each (N,)
+    c[0] = x1 * x2 - a12 * a21
+    c[3] = a12 * a20 - a10 * x2
+    c[6] = a10 * a21 - x1 * a20
+    det = x0 * c[0] + a01 * c[3] + a02 * c[6]
+    c[1] = a02 * a21 - a01 * x2
+    c[2] = a01 * a12 - a02 * x1
+    c[4] = x0 * x2 - a02 * a20
+    c[5] = a02 * a10 - x0 * a12
+    c[7] = a01 * a20 - x0 * a21
+    c[8] = x0 * x1 - a01 * a10
+    c /= det
+    return Dg_inv, Da_inv
+
+
 def compensated_jacobians(errors: object, omega_hat: FloatArray, omega_dot: FloatArray,
                           f_hat: FloatArray, f_dot: FloatArray | None = None) -> tuple[
                               FloatArray, FloatArray]:
@@ -259,14 +312,5 @@ def compensated_jacobians(errors: object, omega_hat: FloatArray, omega_dot: Floa
     """
     Mg = gyro_jacobian(omega_hat, f_hat)
     Ma = accel_jacobian(omega_hat, omega_dot, f_hat, f_dot)
-    kg = np.asarray(errors.gyro_scale_misalignment)  # type: ignore[attr-defined]
-    ka = np.asarray(errors.accel_scale_misalignment)  # type: ignore[attr-defined]
-    ag = np.asarray(errors.gyro_scale_asymmetry)  # type: ignore[attr-defined]
-    aa = np.asarray(errors.accel_scale_asymmetry)  # type: ignore[attr-defined]
-    qa = np.asarray(errors.accel_quadratic_per_m_s2)  # type: ignore[attr-defined]
-    Dg = np.eye(3) + kg + np.einsum('ni,ij->nij', ag * np.sign(omega_hat), np.eye(3))
-    Da = np.eye(3) + ka + np.einsum('ni,ij->nij', aa * np.sign(f_hat) + 2 * qa * f_hat,
-                                    np.eye(3))
-    # inv(D) @ M, not solve(D, M): the same values to rounding, 3-4x cheaper batched
-    # (numpy's batched solve with many right-hand sides is slow for 3 x 3 systems)
-    return np.linalg.inv(Dg) @ Mg, np.linalg.inv(Da) @ Ma
+    Dg_inv, Da_inv = compensation_inverses(errors, omega_hat, f_hat)
+    return Dg_inv @ Mg, Da_inv @ Ma

@@ -277,7 +277,7 @@ class CalibrationEstimator:
         idx = np.arange(6, lay.n)
         s = lay.scale[idx]
         if self._filter is not None:
-            P = self._filter.P[np.ix_(idx, idx)] * np.outer(s, s)
+            P = self._filter.P[6:, 6:] * np.outer(s, s)  # idx: the states from 6 on
         elif self._kept_cal_P is not None:  # between a navigation reset and the re-alignment
             P = self._kept_cal_P * np.outer(s, s)
         else:

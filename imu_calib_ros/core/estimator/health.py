@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg.lapack import dpotrf as _potrf
 
 from ..input_guard import GuardConfig, InputGuard
 from ..rotation import skew
@@ -32,12 +33,11 @@ def numerical_fault(P: FloatArray, x: FloatArray, values: FloatArray, v_enu_m_s:
                     max_velocity_m_s: float) -> str | None:
     """A non-finite state or covariance, a covariance that is not positive definite, or a
     navigated velocity above ``max_velocity_m_s``: the reason, else None."""
-    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(x))
-            and np.all(np.isfinite(values)) and np.all(np.isfinite(v_enu_m_s))):
+    if not (np.isfinite(P).all() and np.isfinite(x).all()
+            and np.isfinite(values).all() and np.isfinite(v_enu_m_s).all()):
         return 'non-finite state or covariance'
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
+    # Cholesky of the lower triangle (numpy.linalg.cholesky's test, without its wrapping)
+    if _potrf(P, lower=1, clean=0, overwrite_a=0)[1] != 0:
         return ('covariance lost positive definiteness (min eigenvalue '
                 f'{float(np.linalg.eigvalsh(P).min()):.3g})')
     speed = float(np.linalg.norm(v_enu_m_s))

@@ -277,18 +277,23 @@ class RunLedger:
             return []
         t_bin = self._origin + k * BIN_NS + BIN_NS // 2
         sums = self._bins[k]
+        spans = self._still_spans()
+        if not spans:
+            return []
+        t0s = np.array([x[0] for x in spans], np.int64)
+        t1s = np.array([x[1] for x in spans], np.int64)
+        # the coarse rule's IMU check (coarse.static_windows: 10 bins in the window), then
+        # the whole bins inside the window (the coarse rule already trimmed 0.3 s); all spans
+        # at once (a search per span was most of the walk check's time)
+        k0, k1 = np.searchsorted(t_bin, t0s), np.searchsorted(t_bin, t1s)
+        b0 = np.searchsorted(t_bin, t0s + BIN_NS // 2)
+        b1 = np.searchsorted(t_bin, t1s - BIN_NS // 2, side='right')
         out = []
-        for t0, t1, q_win in self._still_spans():
-            # the coarse rule's IMU check (coarse.static_windows: 10 bins in the window)
-            k0, k1 = np.searchsorted(t_bin, [t0, t1])
-            if k1 - k0 < 10:
-                continue
-            # whole bins inside the window (the coarse rule already trimmed 0.3 s)
-            b0 = int(np.searchsorted(t_bin, t0 + BIN_NS // 2))
-            b1 = int(np.searchsorted(t_bin, t1 - BIN_NS // 2, side='right'))
-            s = sums[b0:b1].sum(axis=0)
+        for i in np.flatnonzero((k1 - k0 >= 10) & (b1 > b0)).tolist():
+            s = sums[b0[i]:b1[i]].sum(axis=0)
             if s[0] < 10:
                 continue
+            t0, t1, q_win = spans[i]
             out.append((t0, t1, q_win, s[1:4] / s[0], s[4:7] / s[0], int(s[0])))
         if len(out) > MAX_WINDOWS:
             keep = sorted(sorted(range(len(out)), key=lambda i: -out[i][5])[:MAX_WINDOWS])
