@@ -199,8 +199,9 @@ def test_joint_offsets_are_estimated_states_of_a_chain_only(arm6) -> None:  # no
     before the last; the last one is the mounting), a turntable has none. On an arm whose
     zero offsets are 2 mrad (a MEMS unit: encoder attitude aiding on), the estimated offsets
     are within 3 sigma of the truth, wrist 2's (perpendicular to the last joint: the encoder
-    attitude sees it at every pose) to ~10 urad; the filter's covariance stays positive definite with the degenerate ones (the
-    parallel shoulder/elbow/wrist-1 offsets, the base's with the heading) near their prior;
+    attitude sees it at every pose) to ~10 urad; the filter's covariance stays positive
+    definite with the degenerate ones (the parallel shoulder/elbow/wrist-1 offsets, the
+    base's with the heading) near their prior;
     the result names them in its extra, not in the CONTRACT keys."""
     from imu_calib_ros.core.estimator import CalibrationEstimator, EstimatorConfig
     from imu_calib_ros.core.estimator.replay import replay
