@@ -4,8 +4,8 @@ The filter state (all "estimate minus truth") is, in this order::
 
     psi (3)   attitude error in ENU: R_hat = exp([psi x]) R_true (strapdown.py)  [urad]
     dv  (3)   velocity error in ENU: v_hat - v_true                         [um/s]
-    then the enabled groups of :data:`GROUPS` (sensor errors, lever arm, mounting, and on a
-    general chain the joint zero offsets, :data:`CHAIN_GROUP`)
+    then the enabled groups of :data:`GROUPS` (sensor errors, lever arm, mounting), and on a
+    general chain the joint zero offsets (:data:`CHAIN_GROUP`, last)
 
 Each group is kept in an engineering unit (:data:`GROUPS`), so that the covariance spans a
 few orders of magnitude instead of ten (issue 3, item 4). ``scale`` converts a scaled state to
@@ -42,9 +42,8 @@ MM = registry.MM
 #: to :meth:`StateLayout.build` (0 here). Not a registry group: no grade, no CONTRACT 4 key.
 CHAIN_GROUP = 'joint_offset'
 GROUPS: tuple[tuple[str, int, float, str, str], ...] = tuple(
-    (g.name, g.size, g.si_per_unit, g.unit, g.side) for g in registry.GROUPS) + (
-    (CHAIN_GROUP, 0, URAD, 'urad', ''),)
-GROUP_INFO = {g[0]: g for g in GROUPS}
+    (g.name, g.size, g.si_per_unit, g.unit, g.side) for g in registry.GROUPS)
+GROUP_INFO = {g[0]: g for g in GROUPS + ((CHAIN_GROUP, 0, URAD, 'urad', ''),)}
 GYRO_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'g')
 ACCEL_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'a')
 N_GYRO = sum(g[1] for g in GROUPS if g[4] == 'g')  # 21 columns of the full M_g

@@ -1156,6 +1156,10 @@ class CalibrationEstimator:
         if chain is not None:
             v1 = v1 + chain[3][0]
             var_vel = var_vel + np.diag(chain[4][0])
+            if self.layout.n_joint_offsets:  # the offsets' share, no longer in chain[4]
+                sl = self.layout.slices[em.CHAIN_GROUP]
+                D = chain[6][0] * self.layout.scale[sl]  # m/s per filter unit
+                var_vel = var_vel + np.einsum('ij,jk,ik->i', D, self._filter.P[sl, sl], D)
         q1_s = self._process_noise.q1_s
         assert q1_s is not None
         self._filter.P = bridge_motion_covariance(self._filter.P, self.layout, dF, Ru, R1, w_eb,

@@ -204,7 +204,10 @@ def chain_attitude_covariance(fixture: Fixture, q: FloatArray, joint_offset_sigm
                               correlation: float) -> FloatArray:
     """Covariance (B, 3, 3) [rad^2] of the encoder attitude of a general chain from its joint
     zero offsets: an offset ``dq_j`` turns the IMU by ``dq_j u_j`` (ENU); systematic over a
-    dwell, hence ``correlation`` as in :func:`chain_velocity_covariance`."""
+    dwell, hence ``correlation`` as in :func:`chain_velocity_covariance`. Only with
+    ``estimate_joint_offset`` off: the offset error is constant over a whole dwell and
+    repeats at each return to a pose, which no correlation factor describes (a 3.3 sigma
+    gyro g-sensitivity on bench_arm, docs/ESTIMATOR.md arm9); as states they have none."""
     u = fixture.angular_axes_enu(q)  # (B, n, 3)
     return (joint_offset_sigma_rad ** 2 * correlation) * np.einsum('bni,bnj->bij', u, u)
 
