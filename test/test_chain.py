@@ -75,6 +75,32 @@ def test_chain_kinematics_by_finite_differences(kinds: tuple[str, ...]) -> None:
     np.testing.assert_allclose(k.f_imu_m_s2, f, atol=1e-12)
 
 
+@pytest.mark.parametrize('kinds', [('revolute',) * 4, ('revolute', 'prismatic', 'revolute'),
+                                   ('prismatic', 'revolute', 'continuous', 'revolute')])
+def test_anchor_velocity_jacobian_by_finite_differences(kinds: tuple[str, ...]) -> None:
+    """``d v_anchor / d q`` (what a joint zero offset does to the chain velocity, issue 15)
+    against central differences of ``anchor_velocity_enu_m_s`` in each joint angle, revolute
+    and prismatic; zero at rest; zero on a turntable."""
+    fx = random_chain(FastEarthSite(40.0, 0.0), kinds, seed=len(kinds) + 7)
+    n = len(kinds)
+    rng = np.random.default_rng(n)
+    q, qd = rng.uniform(-2, 2, (9, n)), rng.normal(0, 0.7, (9, n))
+    J = fx.anchor_velocity_jacobian_q(q, qd)
+    h = 1e-6
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = h
+        fd = (fx.anchor_velocity_enu_m_s(q + e, qd) - fx.anchor_velocity_enu_m_s(q - e, qd)) / (
+            2 * h)
+        # a revolute joint turns the rest of the chain; a first prismatic joint moves it
+        # without turning (nothing before it turns): no effect on the velocity
+        assert np.abs(fd).max() > 1e-2 or (j == 0 and not fx.joints[j].revolute)
+        assert np.abs(J[:, :, j] - fd).max() < 1e-8
+    assert not fx.anchor_velocity_jacobian_q(q, np.zeros_like(qd)).any()
+    tt = load_fixture('three_axis')
+    assert not tt.anchor_velocity_jacobian_q(q[:, :3], qd[:, :3]).any()
+
+
 def arm() -> Fixture:
     return load_fixture('arm6.urdf', ARM)
 

@@ -26,6 +26,7 @@ from imu_calib_ros.core.estimator.measurements import (MEAS_SCALE, encoder_attit
 from imu_calib_ros.core.estimator.priors import nominal_lever_arm
 from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.core.rotation import matrix_to_rotvec, rotvec_to_matrix, rpy_to_matrix
+from imu_calib_ros.core.urdf_fixture import UrdfOptions
 
 FX = load_fixture('three_axis')
 DRPY = np.array([0.03, -0.05, 0.08])  # true mounting rotation (rpy, rad): ~5.6 deg
@@ -158,3 +159,136 @@ def test_filter_units_preserve_z_equals_H_x() -> None:
     np.testing.assert_allclose(H_s @ x_s, (H_si @ (LAYOUT.scale * x_s)) / MEAS_SCALE,
                                rtol=1e-12)
     np.testing.assert_allclose(z_s, z / MEAS_SCALE, rtol=0)
+
+
+# ------------------------------------------------------------------ joint zero offsets (issue 15)
+# A general chain (the six-axis arm): the joint at ``q + o`` when its encoder reads ``q``. The
+# estimator evaluates the chain at ``q + o_hat``; ``o_hat = o + x_o``.
+ARM = load_fixture('arm6.urdf', UrdfOptions('base_link', 'imu_link'))
+ARM_JOINTS = list(em.joint_offset_joints(ARM))
+ARM_LAYOUT = em.StateLayout.build(('gyro_bias', 'lever_arm', 'mounting'), len(ARM_JOINTS))
+
+
+def _offset_arm(o: np.ndarray):  # noqa: ANN202
+    """The arm whose joints ``ARM_JOINTS`` are off by ``o`` (origin turned about the axis, as
+    ``fixture.perturbed_chain`` does)."""
+    from dataclasses import replace
+
+    from imu_calib_ros.core.rotation import rot_axis_angle
+    joints = list(ARM.joints)
+    for k, j in enumerate(ARM_JOINTS):
+        jn = joints[j]
+        R = np.eye(3) if jn.origin_R is None else np.asarray(jn.origin_R)
+        joints[j] = replace(jn, origin_R=R @ rot_axis_angle(jn.axis, o[k]))
+    return ARM.with_joints(tuple(joints))
+
+
+def _arm_truth(seed: int, B: int = 6):  # noqa: ANN202
+    rng = np.random.default_rng(seed)
+    o = rng.normal(0, 2e-3, len(ARM_JOINTS))
+    q = rng.uniform(-1.5, 1.5, (B, ARM.n_joints))
+    qd = rng.uniform(-1.0, 1.0, (B, ARM.n_joints))
+    kin = _offset_arm(o).kinematics(q, qd, rng.uniform(-1, 1, (B, ARM.n_joints)))
+    return rng, o, q, qd, kin
+
+
+def _plus(q: np.ndarray, o: np.ndarray) -> np.ndarray:
+    out = q.copy()
+    out[:, ARM_JOINTS] += o
+    return out
+
+
+def test_joint_offset_layout_only_on_a_chain() -> None:
+    assert em.joint_offset_joints(FX) == ()  # a turntable: no group
+    assert 'joint_offset' not in LAYOUT.slices and LAYOUT.n_joint_offsets == 0
+    assert ARM_JOINTS == [0, 1, 2, 3, 4]  # the revolute joints before the last (the mounting)
+    assert ARM_LAYOUT.labels()[-1] == 'joint_offset[4]' and ARM_LAYOUT.n == 6 + 9 + 5
+    np.testing.assert_allclose(ARM_LAYOUT.scale[ARM_LAYOUT.slices['joint_offset']], 1e-6)
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_chain_velocity_vanishes_at_the_true_offsets(seed: int) -> None:
+    """The anchor velocity at ``q + o`` is the offset arm's: the innovation is zero at the
+    true offsets (up to the earth-rate term) and not at zero offsets."""
+    _, o, q, qd, kin = _arm_truth(seed)
+    om = ARM.site.omega_ie_enu
+
+    def z_at(o_hat: np.ndarray) -> np.ndarray:
+        qo = _plus(q, o_hat)
+        return zero_velocity(kin.v_enu_m_s, kin.R_enu_imu, kin.omega_ib_imu_rad_s, om,
+                             np.zeros(3), ARM_LAYOUT, ARM.anchor_velocity_enu_m_s(qo, qd))[0]
+
+    assert np.abs(z_at(o)).max() < 1e-12
+    assert np.abs(z_at(np.zeros_like(o))).max() > 1e-4  # 2 mrad x ~1 m/s per rad
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_chain_velocity_offset_jacobian_matches_finite_differences(seed: int) -> None:
+    rng, o, q, qd, kin = _arm_truth(seed)
+    om = ARM.site.omega_ie_enu
+    o_hat = o + rng.normal(0, 1e-4, len(o))
+    rho = rng.normal(0, 1e-3, 3)
+
+    def z_of(d_o: np.ndarray) -> np.ndarray:
+        qo = _plus(q, o_hat + d_o)
+        return zero_velocity(kin.v_enu_m_s, kin.R_enu_imu, kin.omega_ib_imu_rad_s, om, rho,
+                             ARM_LAYOUT, ARM.anchor_velocity_enu_m_s(qo, qd))[0]
+
+    qo = _plus(q, o_hat)
+    D = ARM.anchor_velocity_jacobian_q(qo, qd)[:, :, ARM_JOINTS]
+    _, H = zero_velocity(kin.v_enu_m_s, kin.R_enu_imu, kin.omega_ib_imu_rad_s, om, rho,
+                         ARM_LAYOUT, ARM.anchor_velocity_enu_m_s(qo, qd), D)
+    cols = []
+    for k in range(len(o)):
+        e = np.zeros(len(o))
+        e[k] = STEP
+        cols.append((z_of(e) - z_of(-e)) / (2 * STEP))
+    fd = np.stack(cols, axis=-1)
+    sl = ARM_LAYOUT.slices['joint_offset']
+    assert np.abs(fd).max() > 0.1  # the offsets do move the anchor velocity
+    assert _column_error(H, fd, sl) < 1e-8
+    # without the derivative: no offset columns (the turntable's call)
+    _, H0 = zero_velocity(kin.v_enu_m_s, kin.R_enu_imu, kin.omega_ib_imu_rad_s, om, rho,
+                          ARM_LAYOUT, ARM.anchor_velocity_enu_m_s(qo, qd))
+    assert not H0[:, :, sl].any()
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_encoder_attitude_vanishes_at_the_true_offsets(seed: int) -> None:
+    _, o, q, _, kin = _arm_truth(seed)
+    z, _ = encoder_attitude(kin.R_enu_imu, ARM.R_enu_imu(_plus(q, o)), np.zeros(3), ARM_LAYOUT)
+    assert np.abs(z).max() < 1e-13
+    z0, _ = encoder_attitude(kin.R_enu_imu, ARM.R_enu_imu(q), np.zeros(3), ARM_LAYOUT)
+    assert np.abs(z0).max() > 1e-3
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_encoder_attitude_offset_jacobian_matches_finite_differences(seed: int) -> None:
+    rng, o, q, _, kin = _arm_truth(seed)
+    o_hat = o + rng.normal(0, 1e-4, len(o))
+    mu = rng.normal(0, 1e-4, 3)
+    psi = rng.normal(0, 1e-4, 3)
+    R_hat = rotvec_to_matrix(psi) @ kin.R_enu_imu
+    qo = _plus(q, o_hat)
+    axes = ARM.angular_axes_enu(qo)[:, ARM_JOINTS]
+    z0, H = encoder_attitude(R_hat, ARM.R_enu_imu(qo), mu, ARM_LAYOUT, axes)
+
+    def z_of(d_o: np.ndarray) -> np.ndarray:
+        return encoder_attitude(R_hat, ARM.R_enu_imu(_plus(q, o_hat + d_o)), mu,
+                                ARM_LAYOUT)[0]
+
+    cols = []
+    for k in range(len(o)):
+        e = np.zeros(len(o))
+        e[k] = STEP
+        cols.append((z_of(e) - z_of(-e)) / (2 * STEP))
+    fd = np.stack(cols, axis=-1)
+    assert np.abs(fd).max() > 0.5  # unit axes
+    assert _column_error(H, fd, ARM_LAYOUT.slices['joint_offset']) < 2 * np.abs(z0).max() + 1e-8
+    # and the full model is linear in the errors: z ~ H x with every state's error
+    x = np.zeros(ARM_LAYOUT.n)
+    x[ARM_LAYOUT.slices['joint_offset']] = o_hat - o
+    x[ARM_LAYOUT.slices['mounting']] = mu
+    x[0:3] = psi
+    lin = np.einsum('bij,j->bi', H, x)
+    assert np.abs(z0 - lin).max() < 1e-6  # second order in 1e-4 errors

@@ -331,6 +331,44 @@ class Fixture:
         R_n, w, _, _, v_O, _ = self._motion(q, qd, np.zeros_like(qd))
         return v_O + np.cross(w, R_n @ self.imu_xyz_m)  # type: ignore[no-any-return]
 
+    def anchor_velocity_jacobian_q(self, q: ArrayLike, qd: ArrayLike) -> FloatArray:
+        """``d v_anchor / d q`` (..., 3, n) at fixed rates ``qd``: what a joint zero offset
+        does to :meth:`anchor_velocity_enu_m_s` (issue 15, the offsets as filter states).
+
+        With ``v = sum_i c_i``, ``c_i = u_i qd_i x (p - O_i)`` (revolute) or ``u_i qd_i``
+        (prismatic; module docstring), turning joint ``j`` by ``dq`` turns every frame beyond
+        it about ``u_j`` through ``O_j``: the terms ``i >= j`` turn with it and the IMU point
+        ``p`` moves by ``u_j x (p - O_j) dq``, which the joints before ``j`` see. Hence::
+
+            dv/dq_j = u_j x (v - v_<j) + w_<j x (u_j x (p - O_j))     (revolute j)
+            dv/dq_j = w_<j x u_j                                      (prismatic j)
+
+        ``v_<j = sum_{i<j} c_i``, ``w_<j = sum_{i<j} u_i qd_i``. Exactly linear in ``qd``
+        (zero at rest); zero on a turntable. Checked by finite differences
+        (``test/test_chain.py``).
+        """
+        q = self._check_q(q)
+        qd = self._check_q(qd, 'qd')
+        J = np.zeros(q.shape[:-1] + (3, self.n_joints))
+        if self.concurrent:
+            return J
+        R_n, u, O = self._origins(q)
+        p = O[..., -1, :] + R_n @ self.imu_xyz_m
+        v = self.anchor_velocity_enu_m_s(q, qd)
+        w = np.zeros(q.shape[:-1] + (3,))
+        v_before = np.zeros_like(w)
+        for j, joint in enumerate(self.joints):
+            uj, qdj = u[..., j, :], qd[..., j, None]
+            if joint.revolute:
+                r = p - O[..., j, :]
+                J[..., :, j] = np.cross(uj, v - v_before) + np.cross(w, np.cross(uj, r))
+                v_before = v_before + np.cross(uj * qdj, r)
+                w = w + uj * qdj
+            else:
+                J[..., :, j] = np.cross(w, uj)
+                v_before = v_before + uj * qdj
+        return J
+
     def angular_axes_enu(self, q: ArrayLike) -> FloatArray:
         """Joint axes in ENU with prismatic joints' rows zero: ``omega_eb = sum_i u_i qd_i``
         over this, (..., n, 3)."""

@@ -156,7 +156,10 @@ def velocity_plot(extra: dict[str, Any]) -> str | None:
 
 
 def _element(group: str, i: int) -> str:
-    """``'x'``, ``'xy'``: the entry a state of ``group`` is (the registry's orders)."""
+    """``'x'``, ``'xy'``: the entry a state of ``group`` is (the registry's orders); a joint
+    zero offset (a general chain, not a registry group): its index."""
+    if group not in registry.GROUP_OF_NAME:
+        return f'#{i}'
     return registry.group(group).entry_name(i)
 
 
@@ -233,9 +236,10 @@ def sigma_plot(extra: dict[str, Any]) -> str | None:
     groups = _history_groups(h)
     if not groups or len(t) < 2:
         return None
-    sides = (('gyroscope', lambda g: registry.group(g).side == 'g'),
-             ('accelerometer', lambda g: registry.group(g).side == 'a'),
-             ('fixture (lever arm, mounting)', lambda g: registry.group(g).side == ''))
+    from ..core.estimator.error_model import GROUP_INFO
+    sides = (('gyroscope', lambda g: GROUP_INFO[g][4] == 'g'),
+             ('accelerometer', lambda g: GROUP_INFO[g][4] == 'a'),
+             ('fixture (lever arm, mounting, joint offsets)', lambda g: GROUP_INFO[g][4] == ''))
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.4), sharey=True)
     for ax, (title, pick) in zip(axes, sides):
         k = 0

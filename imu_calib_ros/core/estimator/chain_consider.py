@@ -1,8 +1,11 @@
 """What an arm's own errors leave in the mounting and lever-arm estimates (issue 15 item 4).
 
 On a general chain the encoder attitude and the encoder velocity of the IMU point are wrong by
-the arm's joint zero offsets ``dq`` and joint-origin (link) errors ``dl``. The filter bounds
-their effect per update in the measurement noise (:func:`.measurements.chain_velocity_covariance`,
+the arm's joint zero offsets ``dq`` and joint-origin (link) errors ``dl``. The zero offsets are
+filter states (``joint_offset``, issue 15 arm10): the estimator then asks for the link share
+only (``covariance(0, sigma_l)``) and adds no attitude normal equations. With
+``estimate_joint_offset`` off, the filter bounds both errors' effect per update in the
+measurement noise (:func:`.measurements.chain_velocity_covariance`,
 :func:`.measurements.chain_attitude_covariance`), but the mounting rotation ``mu`` and the lever
 arm ``rho`` are fitted to those very measurements: a systematic ``dq``/``dl`` leaves in them
 its weighted average over the poses (and motions) of the run. That share is a *consider*

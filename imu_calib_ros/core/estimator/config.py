@@ -58,8 +58,12 @@ class EstimatorConfig:
                                         1e-9)
     # --- general chains (issue 15: an arm as the turntable; no effect on a turntable) --------
     chain_joint_offset_sigma_rad: float = setting(
-        1e-3, 'one sigma of the chain\'s joint zero offsets (uncalibrated arm: ~1 mrad); bounds '
-        'their effect on the chain velocity and the encoder attitude measurements', 0.0)
+        1e-3, 'one sigma of the chain\'s joint zero offsets (uncalibrated arm: ~1 mrad): the '
+        'prior of their states (or, with estimate_joint_offset off, their bound in the chain '
+        'velocity and encoder attitude noise)', 0.0)
+    estimate_joint_offset: bool = setting(
+        True, 'general chains: estimate the zero offsets of the revolute joints before the last '
+        '(one state each; the last one is the mounting); off: bounded in the measurement noise')
     chain_link_sigma_m: float = setting(
         2e-3, 'one sigma of the chain\'s joint-origin errors, per coordinate', 0.0)
     chain_encoder_sigma_rad: float = setting(

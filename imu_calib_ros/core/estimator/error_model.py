@@ -4,7 +4,8 @@ The filter state (all "estimate minus truth") is, in this order::
 
     psi (3)   attitude error in ENU: R_hat = exp([psi x]) R_true (strapdown.py)  [urad]
     dv  (3)   velocity error in ENU: v_hat - v_true                         [um/s]
-    then the enabled groups of :data:`GROUPS` (sensor errors, lever arm, mounting)
+    then the enabled groups of :data:`GROUPS` (sensor errors, lever arm, mounting), and on a
+    general chain the joint zero offsets (:data:`CHAIN_GROUP`, last)
 
 Each group is kept in an engineering unit (:data:`GROUPS`), so that the covariance spans a
 few orders of magnitude instead of ten (issue 3, item 4). ``scale`` converts a scaled state to
@@ -37,9 +38,13 @@ MM = registry.MM
 
 # (group, size, SI per engineering unit, unit label, side) - side g: gyro Jacobian columns,
 # a: accel Jacobian columns, '': measurement-only states (the registry's groups, its order)
+#: the joint zero offsets of a general chain (issue 15, measurement-only states): one per
+#: revolute joint before the last (:func:`joint_offset_joints`); the size is the chain's, given
+#: to :meth:`StateLayout.build` (0 here). Not a registry group: no grade, no CONTRACT 4 key.
+CHAIN_GROUP = 'joint_offset'
 GROUPS: tuple[tuple[str, int, float, str, str], ...] = tuple(
     (g.name, g.size, g.si_per_unit, g.unit, g.side) for g in registry.GROUPS)
-GROUP_INFO = {g[0]: g for g in GROUPS}
+GROUP_INFO = {g[0]: g for g in GROUPS + ((CHAIN_GROUP, 0, URAD, 'urad', ''),)}
 GYRO_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'g')
 ACCEL_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'a')
 N_GYRO = sum(g[1] for g in GROUPS if g[4] == 'g')  # 21 columns of the full M_g
@@ -148,12 +153,17 @@ class StateLayout:
     accel_cols: NDArray[np.intp]
 
     @classmethod
-    def build(cls, groups: tuple[str, ...]) -> 'StateLayout':
-        """Layout for ``groups`` (order normalised to :data:`GROUPS`)."""
+    def build(cls, groups: tuple[str, ...], n_joint_offsets: int = 0) -> 'StateLayout':
+        """Layout for ``groups`` (order normalised to :data:`GROUPS`); ``n_joint_offsets``
+        states of :data:`CHAIN_GROUP` at the end when it is > 0 (a general chain)."""
         unknown = set(groups) - set(GROUP_INFO)
         if unknown:
             raise ValueError(f'unknown state groups {sorted(unknown)}')
+        if CHAIN_GROUP in groups:
+            raise ValueError(f'{CHAIN_GROUP!r} is sized by the chain: pass n_joint_offsets')
         ordered = tuple(g[0] for g in GROUPS if g[0] in groups)
+        if n_joint_offsets > 0:
+            ordered = ordered + (CHAIN_GROUP,)
         slices = {'psi': slice(0, 3), 'dv': slice(3, 6)}
         scale = [np.full(3, URAD), np.full(3, 1e-6)]
         k = 6
@@ -163,6 +173,8 @@ class StateLayout:
         ac: list[int] = []
         for name in ordered:
             _, size, unit, _, side = GROUP_INFO[name]
+            if name == CHAIN_GROUP:
+                size = n_joint_offsets
             slices[name] = slice(k, k + size)
             scale.append(np.full(size, unit))
             if side == 'g':
@@ -177,21 +189,41 @@ class StateLayout:
 
     def labels(self) -> list[str]:
         """One readable label per state, e.g. ``'gyro_scale[1]'``."""
-        return list(_labels(self.groups))
+        return list(_labels(self._group_sizes()))
+
+    def _group_sizes(self) -> tuple[tuple[str, int], ...]:
+        return tuple((g, self.slices[g].stop - self.slices[g].start) for g in self.groups)
+
+    @property
+    def n_joint_offsets(self) -> int:
+        """Number of joint zero-offset states (0 on a turntable)."""
+        sl = self.slices.get(CHAIN_GROUP)
+        return 0 if sl is None else sl.stop - sl.start
 
     @property
     def state_labels(self) -> tuple[str, ...]:
         """The labels of the calibration states (:meth:`labels` without psi and dv)."""
-        return _labels(self.groups)[6:]
+        return _labels(self._group_sizes())[6:]
 
 
 @functools.lru_cache(maxsize=64)
-def _labels(groups: tuple[str, ...]) -> tuple[str, ...]:
-    """:meth:`StateLayout.labels` of ``groups`` (read after every block: built once)."""
+def _labels(group_sizes: tuple[tuple[str, int], ...]) -> tuple[str, ...]:
+    """:meth:`StateLayout.labels` of ``(group, size)`` pairs (read after every block: built
+    once)."""
     out = ['psi[0]', 'psi[1]', 'psi[2]', 'dv[0]', 'dv[1]', 'dv[2]']
-    for name in groups:
-        out.extend(f'{name}[{i}]' for i in range(GROUP_INFO[name][1]))
+    for name, size in group_sizes:
+        out.extend(f'{name}[{i}]' for i in range(size))
     return tuple(out)
+
+
+def joint_offset_joints(fixture: Any) -> tuple[int, ...]:
+    """The joints of a general chain whose zero offsets are states: the revolute joints
+    before the last (the last one's *is* a mounting rotation about its axis, the mounting is
+    the IMU's on the last link as its encoder reads it: docs/ESTIMATOR.md "General chains");
+    none on a turntable (concurrent axes)."""
+    if getattr(fixture, 'concurrent', True):
+        return ()
+    return tuple(j for j in range(fixture.n_joints - 1) if fixture.joints[j].revolute)
 
 
 # --- SensorErrors <-> flat parameter vectors ---------------------------------------------

@@ -112,6 +112,7 @@ class CalibrationEstimator:
     _theta_a: FloatArray  # (26,) accelerometer parameters
     _rho: FloatArray  # (3,) lever arm, IMU frame [m]
     _mount: FloatArray  # (3,) mounting rotation vector, IMU frame [rad]
+    _joint_offsets: FloatArray  # (k,) a general chain's joint zero offsets [rad] (issue 15)
     _errors: Any  # SensorErrors of the above (what sensor_model.compensate takes)
     _point_prev: tuple[int, FloatArray, FloatArray] | None  # last raw point sample
 
@@ -298,8 +299,9 @@ class CalibrationEstimator:
         blocks (:mod:`.chain_consider`; the reported covariance only, never the filter's)."""
         assert self._consider is not None
         cfg = self.config
-        C_mu, C_rho = self._consider.covariance(cfg.chain_joint_offset_sigma_rad,
-                                                cfg.chain_link_sigma_m)
+        # estimated offsets are in the filter's P: only the link errors are considered
+        sigma_q = 0.0 if self.layout.n_joint_offsets else cfg.chain_joint_offset_sigma_rad
+        C_mu, C_rho = self._consider.covariance(sigma_q, cfg.chain_link_sigma_m)
         P = P.copy()
         for group, C in (('mounting', C_mu), ('lever_arm', C_rho)):
             if group in self.layout.slices:
@@ -324,12 +326,20 @@ class CalibrationEstimator:
             lambda sd: {'estimator': {**estimator_extra(st, sd, self.layout, self.health(),
                                                         self.attitude_aiding, self.start),
                                       'covariance_scale': float(scale),
+                                      **self._offset_names(),
                                       'settings_changed': self._settings_changed(),
                                       # CONTRACT 4 order, 4 digits (the report's envelope)
                                       'parameter_covariance': [
                                           [float(f'{v:.4g}') for v in row] for row in
                                           parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
+
+    def _offset_names(self) -> dict[str, Any]:
+        """The joints of the ``joint_offset_rad`` extra (a general chain), by name."""
+        if not self._offset_joints:
+            return {}
+        return {'joint_offset_joints': [self.fixture.joint_names[j]
+                                        for j in self._offset_joints]}
 
     def _settings_changed(self) -> dict[str, Any]:
         """The estimator settings that differ from the shipped defaults (the report's header:
@@ -541,7 +551,8 @@ class CalibrationEstimator:
         chain = None if self.fixture.concurrent else self._chain_motion(t[blk.ends])
         z_v, H_v = to_filter_units(*zero_velocity(
             blk.v_enu_end_m_s, blk.R_enu_imu_end, blk.omega_ib_end_rad_s, om, self._rho, lay,
-            None if chain is None else chain[3]), lay.scale)
+            None if chain is None else chain[3], None if chain is None else chain[6]),
+            lay.scale)
         R_v = noise_covariance(cfg.velocity_sigma_m_s)
         z_a, H_a, have_att = self._encoder_attitude(t[blk.ends], blk.R_enu_imu_end)
         R_a = noise_covariance(cfg.attitude_sigma_rad)
@@ -551,7 +562,7 @@ class CalibrationEstimator:
             if self._consider is not None:
                 cov, q_c, R_end = chain[0], chain[1], blk.R_enu_imu_end
                 self._consider.add_velocity(q_c[cov], chain[2][cov], R_end[cov])
-                if 'mounting' in lay.slices:
+                if 'mounting' in lay.slices and not lay.n_joint_offsets:
                     att = cov & have_att
                     self._consider.add_attitude(q_c[att], R_end[att])
         filt = self._filter
@@ -601,35 +612,51 @@ class CalibrationEstimator:
                             filt.counters, force)
 
     def _chain_motion(self, t_ns: NDArray[np.int64]) -> tuple[
-            NDArray[np.bool_], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-        """A general chain (issue 15) at the chunk ends ``t_ns``: (covered, q, qd, anchor
-        velocity (B, 3), its covariance (B, 3, 3) and the encoder attitude's (B, 3, 3) from
-        the arm's errors and the encoder noise,
-        :func:`.measurements.chain_velocity_covariance`)."""
+            NDArray[np.bool_], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+            FloatArray]:
+        """A general chain (issue 15) at the chunk ends ``t_ns``: (covered, q (with the
+        estimated zero offsets), qd, anchor velocity (B, 3), its covariance (B, 3, 3) and the
+        encoder attitude's (B, 3, 3) from the arm's errors and the encoder noise,
+        :func:`.measurements.chain_velocity_covariance`, and the anchor velocity's derivative
+        by the zero-offset states (B, 3, k)). With the offsets as states their share is not
+        in the covariances (the link errors' and the encoder noise's are)."""
         cfg = self.config
         B = len(t_ns)
         n = self.fixture.n_joints
+        k = self.layout.n_joint_offsets
         zeros = np.zeros((B, 3))
         if not len(self._joints):
             return (np.zeros(B, bool), np.zeros((B, n)), np.zeros((B, n)), zeros,
-                    np.zeros((B, 3, 3)), np.zeros((B, 3, 3)))
+                    np.zeros((B, 3, 3)), np.zeros((B, 3, 3)), np.zeros((B, 3, k)))
         covered, q, qd = self._joints.motion_at(t_ns, cfg.stationary_joint_tolerance_rad,
                                                 CHAIN_STILL_HALF_WINDOW_S)
         if q is None or qd is None:
             return (covered, np.zeros((B, n)), np.zeros((B, n)), zeros, np.zeros((B, 3, 3)),
-                    np.zeros((B, 3, 3)))
+                    np.zeros((B, 3, 3)), np.zeros((B, 3, k)))
+        q = self._with_offsets(q)
         if self._chain_fixtures is None:
             self._chain_fixtures = link_error_chains(self.fixture)
         jt = self._joints.t_ns
         dt_j = (jt[-1] - jt[0]) * 1e-9 / max(len(jt) - 1, 1) if len(jt) > 1 else 0.01
         qd_sigma = 1.5 * cfg.chain_encoder_sigma_rad / max(dt_j, 1e-4)
         v_anchor = self.fixture.anchor_velocity_enu_m_s(q, qd)
-        C_v = chain_velocity_covariance(self._chain_fixtures, q, qd,
-                                        cfg.chain_joint_offset_sigma_rad, cfg.chain_link_sigma_m,
-                                        qd_sigma, cfg.chain_error_correlation)
-        C_a = chain_attitude_covariance(self.fixture, q, cfg.chain_joint_offset_sigma_rad,
+        sigma_q = 0.0 if k else cfg.chain_joint_offset_sigma_rad  # states: not noise
+        C_v = chain_velocity_covariance(self._chain_fixtures, q, qd, sigma_q,
+                                        cfg.chain_link_sigma_m, qd_sigma,
                                         cfg.chain_error_correlation)
-        return covered, q, qd, v_anchor, C_v, C_a
+        C_a = chain_attitude_covariance(self.fixture, q, sigma_q, cfg.chain_error_correlation)
+        D = (self.fixture.anchor_velocity_jacobian_q(q, qd)[:, :, list(self._offset_joints)]
+             if k else np.zeros((B, 3, 0)))
+        return covered, q, qd, v_anchor, C_v, C_a, D
+
+    def _with_offsets(self, q: FloatArray) -> FloatArray:
+        """Encoder angles ``q`` (..., n) plus the estimated joint zero offsets: where the
+        chain's kinematics are evaluated (the joint is at ``q + o``, :mod:`.measurements`)."""
+        if not self.layout.n_joint_offsets:
+            return q
+        q = np.array(q, dtype=float)
+        q[..., list(self._offset_joints)] += self._joint_offsets
+        return q
 
     def _encoder_attitude(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray
                           ) -> tuple[FloatArray | None, FloatArray | None, NDArray[np.bool_]]:
@@ -643,8 +670,11 @@ class CalibrationEstimator:
         if q_end is None:
             return None, None, have
         lay = self.layout
+        q_end = self._with_offsets(q_end)
+        axes = (self.fixture.angular_axes_enu(q_end)[:, list(self._offset_joints)]
+                if lay.n_joint_offsets else None)
         z, H = to_filter_units(*encoder_attitude(R_enu_imu, self.fixture.R_enu_imu(q_end),
-                                                 self._mount, lay), lay.scale)
+                                                 self._mount, lay, axes), lay.scale)
         return z, H, have
 
     def _feedback(self) -> None:
@@ -660,6 +690,8 @@ class CalibrationEstimator:
         if 'mounting' in lay.slices:
             self._mount = (Rotation.from_rotvec(self._mount)
                            * Rotation.from_rotvec(-x[lay.slices['mounting']])).as_rotvec()
+        if lay.n_joint_offsets:
+            self._joint_offsets = self._joint_offsets - x[lay.slices[em.CHAIN_GROUP]]
         self._filter.x = np.zeros(lay.n)
         self._errors = self._make_errors()
 
@@ -677,14 +709,21 @@ class CalibrationEstimator:
         if self.attitude_aiding and 'mounting' not in groups:
             groups = groups + ('mounting',)
         self.dropped_groups = tuple(g for g in groups if not np.all(self._prior[g] > 0.0))
+        # a general chain's joint zero offsets (issue 15): states with their prior sigma
+        self._offset_joints = (em.joint_offset_joints(self.fixture)
+                               if cfg.estimate_joint_offset
+                               and cfg.chain_joint_offset_sigma_rad > 0 else ())
+        self._prior[em.CHAIN_GROUP] = np.full(len(self._offset_joints),
+                                              cfg.chain_joint_offset_sigma_rad)
         self.layout = em.StateLayout.build(
-            tuple(g for g in groups if g not in self.dropped_groups))
+            tuple(g for g in groups if g not in self.dropped_groups), len(self._offset_joints))
         self._prior_shift = None if self._initial is None else prior_shift(
             self._initial, tuple(self.layout.labels()[6:]), self._prior_mean())
 
     def _reset_filter_side(self) -> None:
         """Start point, compensation, noise, joint latency: what the coarse start sets."""
         self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
+        self._joint_offsets = self._start_offsets()
         self._errors = self._make_errors()
         self._process_noise.white = white_noise_densities(self.start, self.grade,
                                                           self.config.noise_source)
@@ -756,8 +795,8 @@ class CalibrationEstimator:
             d2 = np.diff(jq[start_j:j1], n=2, axis=0)
             mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
             self._encoder_scatter_rad = float(np.max(1.4826 * mad / np.sqrt(6.0)))
-        al = align(t[:k1], w[:k1], f[:k1], q_mean, self._errors, self._mount, self.fixture,
-                   cfg.update_rate_hz)
+        al = align(t[:k1], w[:k1], f[:k1], self._with_offsets(q_mean), self._errors,
+                   self._mount, self.fixture, cfg.update_rate_hz)
         if al is None:
             return False
         self._nominal_dt = al.nominal_dt_s
@@ -914,8 +953,10 @@ class CalibrationEstimator:
                 self._theta_g, self._theta_a, self._rho, self._mount = with_values(
                     lay, st.values + self._prior_correction(st.covariance), self._theta_g,
                     self._theta_a, self._rho, self._mount)
+            self._joint_offsets = self._offsets_of(st.values)
         else:  # nothing good yet: back to the starting point
             self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
+            self._joint_offsets = self._start_offsets()
         self._errors = self._make_errors()
         if self._filter is not None:
             self._filter.P = rollback_covariance(lay, None if st is None else st.covariance,
@@ -934,6 +975,7 @@ class CalibrationEstimator:
         _LOG.warning('calibration filter diverged (%s): restart %d of %d from the start point '
                      'with inflated covariance', reason, self.restarts, self.config.max_restarts)
         self._theta_g, self._theta_a, self._rho, self._mount = self._start_point()
+        self._joint_offsets = self._start_offsets()
         self._errors = self._make_errors()
         self._drop_navigation()
         lay = self.layout
@@ -1126,6 +1168,7 @@ class CalibrationEstimator:
         enc = max(self.guard_config.bridge_encoder_sigma_rad, self._encoder_scatter_rad)
         var_att = 2 * q.shape[1] * enc ** 2 + spline2  # both ends, every joint
         fx = self.fixture
+        q = self._with_offsets(q)
         dF = fx.R_enu_imu(q[1]) @ fx.R_enu_imu(q[0]).T
         R1 = dF @ self._nav.R_enu_imu
         rho_m = float(np.linalg.norm(self._rho))
@@ -1153,10 +1196,19 @@ class CalibrationEstimator:
         # 0.1-0.6 mm/s on a navigation unit early in a run; without it 9 of 181 bridges were
         # followed by a gated update, with it none; carrying the navigated velocity across
         # by the model's change instead: 33)
-        var_vel += (self._nav.v_enu_m_s - R0 @ np.cross(w_c0 - R0.T @ om, self._rho)) ** 2
+        m0 = R0 @ np.cross(w_c0 - R0.T @ om, self._rho)
+        if chain is not None:  # a chain's model adds the anchor's velocity
+            chain0 = self._chain_motion(np.array([t0], np.int64))
+            if chain0[0][0]:
+                m0 = m0 + chain0[3][0]
+        var_vel += (self._nav.v_enu_m_s - m0) ** 2
         if chain is not None:
             v1 = v1 + chain[3][0]
             var_vel = var_vel + np.diag(chain[4][0])
+            if self.layout.n_joint_offsets:  # the offsets' share, no longer in chain[4]
+                sl = self.layout.slices[em.CHAIN_GROUP]
+                D = chain[6][0] * self.layout.scale[sl]  # m/s per filter unit
+                var_vel = var_vel + np.einsum('ij,jk,ik->i', D, self._filter.P[sl, sl], D)
         q1_s = self._process_noise.q1_s
         assert q1_s is not None
         self._filter.P = bridge_motion_covariance(self._filter.P, self.layout, dF, Ru, R1, w_eb,
@@ -1210,6 +1262,20 @@ class CalibrationEstimator:
         return (init.theta_gyro.copy(), init.theta_accel.copy(), init.lever_arm_imu_m.copy(),
                 init.mounting_rotvec_rad.copy())
 
+    def _start_offsets(self) -> FloatArray:
+        """The joint zero offsets the filter starts from: the starting estimate's, else
+        zero (the prior mean; :meth:`_start_point` for the other states)."""
+        if self._initial is None:
+            return np.zeros(self.layout.n_joint_offsets)
+        return self._offsets_of(np.asarray(self._initial.values, float))
+
+    def _offsets_of(self, values: FloatArray) -> FloatArray:
+        """The joint zero offsets in calibration-state ``values`` (empty without them)."""
+        sl = self.layout.slices.get(em.CHAIN_GROUP)
+        if sl is None:
+            return np.zeros(0)
+        return np.array(values[sl.start - 6:sl.stop - 6], dtype=float)
+
     def _prior_mean(self) -> FloatArray:
         """Where pass 1 starts (:func:`.priors.prior_point`), as calibration-state values."""
         return values_of(self.layout, *prior_point(self.fixture, self.start, self.layout))
@@ -1242,7 +1308,8 @@ class CalibrationEstimator:
         return em.errors_from_theta(self._theta_g, self._theta_a, sm.SensorErrors)
 
     def _state_values(self) -> FloatArray:
-        return values_of(self.layout, self._theta_g, self._theta_a, self._rho, self._mount)
+        return values_of(self.layout, self._theta_g, self._theta_a, self._rho, self._mount,
+                         self._joint_offsets)
 
     def _frame(self) -> str:
         """The frame of the calibration: the configured one, else that of the data."""

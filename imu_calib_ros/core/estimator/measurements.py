@@ -9,8 +9,10 @@ states in the layout's engineering units). ``test/test_measurements.py`` checks 
 Jacobian column against finite differences of ``z``.
 
 Conventions (``error_model``, ``strapdown``): ``R_hat = exp([psi x]) R``, ``v_hat = v + dv``,
-``rho_hat = rho + x_rho``, and the mounting ``exp(mu_hat) = exp(mu) exp(x_mu)`` (the feedback
-applies ``exp(mu) = exp(mu_hat) exp(-x_mu)``).
+``rho_hat = rho + x_rho``, the mounting ``exp(mu_hat) = exp(mu) exp(x_mu)`` (the feedback
+applies ``exp(mu) = exp(mu_hat) exp(-x_mu)``) and, on a general chain, the joint zero offsets
+``o_hat = o + x_o`` (the joint is at ``q + o`` when its encoder reads ``q``; the chain's
+kinematics are evaluated at ``q + o_hat``).
 """
 from __future__ import annotations
 
@@ -33,8 +35,8 @@ MEASUREMENT_DOF = 3  # every measurement update is 3-D (velocity, attitude)
 
 def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad_s: FloatArray,
                   omega_ie_enu_rad_s: FloatArray, rho_imu_m: FloatArray,
-                  layout: StateLayout, v_anchor_enu_m_s: FloatArray | None = None
-                  ) -> tuple[FloatArray, FloatArray]:
+                  layout: StateLayout, v_anchor_enu_m_s: FloatArray | None = None,
+                  dv_anchor_do: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Zero velocity of the turntable with the lever arm (METHODS.md, "cuts across"), or the
     chain velocity of a general fixture (issue 15: a robot arm).
 
@@ -43,7 +45,9 @@ def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad
     On a general chain ``rho`` is measured from the anchor (the innermost joint frame's
     origin), which itself moves with ``v_anchor`` (``Fixture.anchor_velocity_enu_m_s`` at the
     encoder angles and rates): ``v_enu = v_anchor + R_enu_imu (omega_eb_imu x rho)``, the same
-    ``H`` (``v_anchor`` depends on no state).
+    ``H``, plus the joint zero offsets' columns: ``v_anchor`` is evaluated at ``q + o_hat``, so
+    ``v_anchor(q + o_hat) = v_anchor(q + o) + (dv_anchor/dq) x_o`` and ``H_o = -dv_anchor/dq``
+    over the offset joints (``Fixture.anchor_velocity_jacobian_q``).
     The innovation is the navigated velocity minus that:
     ``z = v_hat - R_hat (omega_eb x rho_hat) = dv + [(R u) x] psi - R [omega_eb x] x_rho``,
     ``u = omega_eb x rho``. Not in ``H``: the earth-rate part of ``omega_eb`` through psi
@@ -56,6 +60,9 @@ def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad
         Navigated velocity at the chunk ends.
     v_anchor_enu_m_s : (B, 3), optional
         Velocity of the anchor from the joint encoders (general chains); None: zero.
+    dv_anchor_do : (B, 3, k), optional
+        ``d v_anchor / d q`` of the ``k`` joints whose zero offsets are states (the layout's
+        ``joint_offset`` group, in its order); None: no such columns.
     R_enu_imu : (B, 3, 3)
         Navigated attitude at the chunk ends.
     omega_ib_imu_rad_s : (B, 3)
@@ -83,17 +90,24 @@ def zero_velocity(v_enu_m_s: FloatArray, R_enu_imu: FloatArray, omega_ib_imu_rad
     H[:, :, 0:3] = skew(Ru)
     if 'lever_arm' in layout.slices:
         H[:, :, layout.slices['lever_arm']] = -R_enu_imu @ skew(w_eb)
+    if dv_anchor_do is not None and layout.n_joint_offsets:
+        H[:, :, layout.slices['joint_offset']] = -dv_anchor_do
     return z, H
 
 
 def encoder_attitude(R_enu_imu: FloatArray, R_enu_imu_fixture: FloatArray,
                      mounting_rotvec_rad: FloatArray,
-                     layout: StateLayout) -> tuple[FloatArray, FloatArray]:
+                     layout: StateLayout, offset_axes_enu: FloatArray | None = None
+                     ) -> tuple[FloatArray, FloatArray]:
     """Attitude from the joint encoders with the mounting rotation (issue 11 aiding).
 
     The fixture kinematics at the encoder angles give ``R_fix(q)``; with the mounting
     ``R_pred = R_fix(q) exp(mu_hat)``. The innovation is the rotation vector of
     ``R_hat R_pred^T = exp([psi x]) exp(-[(R x_mu) x])``: ``z = psi - R x_mu`` to first order.
+    On a general chain with zero-offset states ``R_fix`` is taken at ``q + o_hat``; turning
+    joint ``j`` by ``x_j`` turns every frame beyond it about its ENU axis ``u_j``:
+    ``R_fix(q + o_hat) = exp([(sum_j u_j x_j) x]) R_fix(q + o)``, so ``z = psi - R x_mu -
+    sum_j u_j x_j`` (``H_o = -u_j``).
 
     Parameters
     ----------
@@ -106,6 +120,9 @@ def encoder_attitude(R_enu_imu: FloatArray, R_enu_imu_fixture: FloatArray,
         Mounting rotation estimate, IMU frame.
     layout :
         The state layout (the mounting column only if it is a state).
+    offset_axes_enu : (B, k, 3), optional
+        ENU axes of the ``k`` joints whose zero offsets are states (``joint_offset`` order),
+        at ``q + o_hat``; None: no such columns.
 
     Returns
     -------
@@ -118,6 +135,8 @@ def encoder_attitude(R_enu_imu: FloatArray, R_enu_imu_fixture: FloatArray,
     H[:, :, 0:3] = np.eye(3)
     if 'mounting' in layout.slices:
         H[:, :, layout.slices['mounting']] = -R_enu_imu
+    if offset_axes_enu is not None and layout.n_joint_offsets:
+        H[:, :, layout.slices['joint_offset']] = -np.swapaxes(offset_axes_enu, 1, 2)
     return z, H
 
 
@@ -185,7 +204,10 @@ def chain_attitude_covariance(fixture: Fixture, q: FloatArray, joint_offset_sigm
                               correlation: float) -> FloatArray:
     """Covariance (B, 3, 3) [rad^2] of the encoder attitude of a general chain from its joint
     zero offsets: an offset ``dq_j`` turns the IMU by ``dq_j u_j`` (ENU); systematic over a
-    dwell, hence ``correlation`` as in :func:`chain_velocity_covariance`."""
+    dwell, hence ``correlation`` as in :func:`chain_velocity_covariance`. Only with
+    ``estimate_joint_offset`` off: the offset error is constant over a whole dwell and
+    repeats at each return to a pose, which no correlation factor describes (a 3.3 sigma
+    gyro g-sensitivity on bench_arm, docs/ESTIMATOR.md arm9); as states they have none."""
     u = fixture.angular_axes_enu(q)  # (B, n, 3)
     return (joint_offset_sigma_rad ** 2 * correlation) * np.einsum('bni,bnj->bij', u, u)
 

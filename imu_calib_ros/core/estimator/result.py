@@ -42,8 +42,9 @@ class Estimate:
 
 
 def values_of(layout: StateLayout, tg: FloatArray, ta: FloatArray, rho: FloatArray,
-              mount: FloatArray) -> FloatArray:
-    """Calibration-state values (no psi, dv) of a working point's parameter arrays."""
+              mount: FloatArray, joint_offsets: FloatArray | None = None) -> FloatArray:
+    """Calibration-state values (no psi, dv) of a working point's parameter arrays (and a
+    general chain's joint zero offsets; None: zero)."""
     out = np.zeros(layout.n)
     out[layout.gyro_state_idx] = tg[layout.gyro_cols]
     out[layout.accel_state_idx] = ta[layout.accel_cols]
@@ -51,6 +52,8 @@ def values_of(layout: StateLayout, tg: FloatArray, ta: FloatArray, rho: FloatArr
         out[layout.slices['lever_arm']] = rho
     if 'mounting' in layout.slices:
         out[layout.slices['mounting']] = mount
+    if layout.n_joint_offsets and joint_offsets is not None:
+        out[layout.slices[em.CHAIN_GROUP]] = joint_offsets
     return out[6:]
 
 
@@ -162,6 +165,10 @@ def estimator_extra(est: Estimate, sd: FloatArray, layout: StateLayout,
         if g in layout.slices:
             sl = slice(layout.slices[g].start - 6, layout.slices[g].stop - 6)
             out[f'{g}_sigma'] = [float(v) for v in sd[sl]]
+    if layout.n_joint_offsets:  # a general chain's joint zero offsets (issue 15), not CONTRACT
+        sl = slice(layout.slices[em.CHAIN_GROUP].start - 6, layout.slices[em.CHAIN_GROUP].stop - 6)
+        out['joint_offset_rad'] = [float(v) for v in est.values[sl]]
+        out['joint_offset_sigma_rad'] = [float(v) for v in sd[sl]]
     out['health'] = {k: v for k, v in health.items()
                      if isinstance(v, (int, float, bool, str))}
     # the input guard's rejections by reason (the report's verdict names them)

@@ -34,7 +34,25 @@ def calibration_truth(est: Any, sim: Any) -> NDArray[np.float64]:
         x[lay.slices['lever_arm']] = rho
     if 'mounting' in lay.slices:
         x[lay.slices['mounting']] = Rotation.from_matrix(R_m).as_rotvec()
+    if lay.n_joint_offsets:
+        x[lay.slices[em.CHAIN_GROUP]] = joint_offsets_truth(fx, tf)[
+            list(em.joint_offset_joints(fx))]
     return x[6:]
+
+
+def joint_offsets_truth(nominal: Any, true: Any) -> NDArray[np.float64]:
+    """True zero offsets (n,) [rad] of a chain's revolute joints: the true joint origin is
+    the nominal one turned about the joint's axis, ``O_t = O_n Rot(a, dq)``
+    (:func:`~..fixture.perturbed_chain`: the encoder reads ``q``, the joint is at ``q + dq``);
+    prismatic joints 0."""
+    out = np.zeros(nominal.n_joints)
+    for j, (jn, jt) in enumerate(zip(nominal.joints, true.joints)):
+        if not jn.revolute:
+            continue
+        O_n = np.eye(3) if jn.origin_R is None else np.asarray(jn.origin_R)
+        O_t = np.eye(3) if jt.origin_R is None else np.asarray(jt.origin_R)
+        out[j] = float(Rotation.from_matrix(O_n.T @ O_t).as_rotvec() @ np.asarray(jn.axis))
+    return out
 
 
 def last_link_truth(nominal: Any, true: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
