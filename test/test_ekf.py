@@ -138,15 +138,20 @@ def test_gated_innovation_is_deweighted_to_the_gate() -> None:
     assert 'velocity' not in filt.counters.deweighted
 
 
-def test_transition_rows_are_the_rows_of_the_full_matrix() -> None:
-    rng = np.random.default_rng(4)
-    lay = em.StateLayout.build(ALL)
-    B, m = 3, 7
+def _random_chunks(rng: np.random.Generator, B: int = 3, m: int = 7):  # noqa: ANN202
+    """Attitudes, specific forces, sensor Jacobians and intervals of B chunks of m samples."""
     R = rotvec_to_matrix(rng.normal(size=(B * m, 3))).reshape(B, m, 3, 3)
     f = rng.normal(size=(B, m, 3)) + [0.0, 0.0, 9.8]
     Mg = rng.normal(size=(B, m, 3, em.N_GYRO))
     Ma = rng.normal(size=(B, m, 3, em.N_ACCEL))
-    dt = np.full((B, m), 0.005)
+    return R, f, Mg, Ma, np.full((B, m), 0.005)
+
+
+def test_transition_rows_are_the_rows_of_the_full_matrix() -> None:
+    rng = np.random.default_rng(4)
+    lay = em.StateLayout.build(ALL)
+    B = 3
+    R, f, Mg, Ma, dt = _random_chunks(rng, B)
     om = np.array([0.0, 5e-5, 5e-5])
     rows = chunk_transition_rows(lay, R, f, Mg, Ma, dt, om)
     phi = chunk_transitions(lay, R, f, Mg, Ma, dt, om)
@@ -166,13 +171,9 @@ def test_transition_rows_with_the_compensation_inverses_on_the_left() -> None:
     rng = np.random.default_rng(5)
     lay = em.StateLayout.build(ALL)
     B, m = 3, 7
-    R = rotvec_to_matrix(rng.normal(size=(B * m, 3))).reshape(B, m, 3, 3)
-    f = rng.normal(size=(B, m, 3)) + [0.0, 0.0, 9.8]
-    Mg = rng.normal(size=(B, m, 3, em.N_GYRO))
-    Ma = rng.normal(size=(B, m, 3, em.N_ACCEL))
+    R, f, Mg, Ma, dt = _random_chunks(rng, B, m)
     Dg_inv = np.eye(3) + 1e-3 * rng.normal(size=(B, m, 3, 3))
     Da_inv = np.eye(3) + 1e-3 * rng.normal(size=(B, m, 3, 3))
-    dt = np.full((B, m), 0.005)
     om = np.array([0.0, 5e-5, 5e-5])
     ref = chunk_transition_rows(lay, R, f, Dg_inv @ Mg, Da_inv @ Ma, dt, om)
     rows = chunk_transition_rows(lay, R, f, Mg, Ma, dt, om, Dg_inv, Da_inv)

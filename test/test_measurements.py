@@ -46,6 +46,16 @@ def _truth(seed: int, B: int = 6):  # noqa: ANN202
     return rng, q, kin, nominal_lever_arm(true_fx), mu
 
 
+def _central_differences(z_of, n: int) -> np.ndarray:  # noqa: ANN001
+    """``dz/dx`` (..., n) by central differences of ``z_of`` at 0 along each of ``n`` axes."""
+    cols = []
+    for k in range(n):
+        e = np.zeros(n)
+        e[k] = STEP
+        cols.append((z_of(e) - z_of(-e)) / (2 * STEP))
+    return np.stack(cols, axis=-1)
+
+
 def _column_error(H: np.ndarray, fd: np.ndarray, cols: slice) -> float:
     return float(np.abs(H[:, :, cols] - fd).max())
 
@@ -238,12 +248,7 @@ def test_chain_velocity_offset_jacobian_matches_finite_differences(seed: int) ->
     D = ARM.anchor_velocity_jacobian_q(qo, qd)[:, :, ARM_JOINTS]
     _, H = zero_velocity(kin.v_enu_m_s, kin.R_enu_imu, kin.omega_ib_imu_rad_s, om, rho,
                          ARM_LAYOUT, ARM.anchor_velocity_enu_m_s(qo, qd), D)
-    cols = []
-    for k in range(len(o)):
-        e = np.zeros(len(o))
-        e[k] = STEP
-        cols.append((z_of(e) - z_of(-e)) / (2 * STEP))
-    fd = np.stack(cols, axis=-1)
+    fd = _central_differences(z_of, len(o))
     sl = ARM_LAYOUT.slices['joint_offset']
     assert np.abs(fd).max() > 0.1  # the offsets do move the anchor velocity
     assert _column_error(H, fd, sl) < 1e-8
@@ -277,12 +282,7 @@ def test_encoder_attitude_offset_jacobian_matches_finite_differences(seed: int) 
         return encoder_attitude(R_hat, ARM.R_enu_imu(_plus(q, o_hat + d_o)), mu,
                                 ARM_LAYOUT)[0]
 
-    cols = []
-    for k in range(len(o)):
-        e = np.zeros(len(o))
-        e[k] = STEP
-        cols.append((z_of(e) - z_of(-e)) / (2 * STEP))
-    fd = np.stack(cols, axis=-1)
+    fd = _central_differences(z_of, len(o))
     assert np.abs(fd).max() > 0.5  # unit axes
     assert _column_error(H, fd, ARM_LAYOUT.slices['joint_offset']) < 2 * np.abs(z0).max() + 1e-8
     # and the full model is linear in the errors: z ~ H x with every state's error

@@ -131,27 +131,24 @@ class BlockCompensation:
             v = v - w * (self.r @ w)  # omega x (omega x r_i), i-th component
         return self.ia @ v
 
-    def _rates_alone(self, wm: FloatArray) -> FloatArray:
-        w = self.ig @ wm
-        scale = np.maximum(np.abs(w).max(axis=0), 1e-12)
+    @staticmethod
+    def _iterate(x: FloatArray, step: Any, floor: float) -> FloatArray:
+        """``x = step(x)`` until :class:`_Stop` (changes relative to the largest |x| per axis,
+        at least ``floor``)."""
+        scale = np.maximum(np.abs(x).max(axis=0), floor)
         stop = _Stop()
         while True:
-            w_new = self._gyro_step(wm, w, None)
-            change = float((np.abs(w_new - w) / scale).max())
-            w = w_new
+            x_new = step(x)
+            change = float((np.abs(x_new - x) / scale).max())
+            x = x_new
             if stop(change):
-                return w
+                return x
+
+    def _rates_alone(self, wm: FloatArray) -> FloatArray:
+        return self._iterate(self.ig @ wm, lambda w: self._gyro_step(wm, w, None), 1e-12)
 
     def _forces_alone(self, am: FloatArray, w: FloatArray) -> FloatArray:
-        f = self.ia @ am
-        scale = np.maximum(np.abs(f).max(axis=0), 1e-9)
-        stop = _Stop()
-        while True:
-            f_new = self._accel_step(am, w, f)
-            change = float((np.abs(f_new - f) / scale).max())
-            f = f_new
-            if stop(change):
-                return f
+        return self._iterate(self.ia @ am, lambda f: self._accel_step(am, w, f), 1e-9)
 
     def _coupled(self, wm: FloatArray, am: FloatArray, omega_dot: FloatArray | None
                  ) -> tuple[FloatArray, FloatArray]:
