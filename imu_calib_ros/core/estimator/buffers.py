@@ -244,7 +244,8 @@ class JointBuffer:
         smooth); inside a hole of the joint record (:data:`JOINT_HOLE_PERIODS`) twice the
         difference. On a trapezoidal move at 10-100 Hz, with and without a hole of 5 lost
         samples, the rms of the true error is 0.06-0.6 of the rms of this estimate (never
-        above it: test_joint_buffer.py). Read from the 16 samples around each instant."""
+        above it: test_joint_buffer.py). Read from the 16 samples around each instant;
+        with fewer than 8 there, the cubic's whole difference from the straight line."""
         from scipy.interpolate import CubicSpline
         jt = np.array(self.t_ns, np.int64)
         jq = np.array(self.q_rad)
@@ -252,10 +253,15 @@ class JointBuffer:
         for b, tb in enumerate(t_ns):
             k = int(np.searchsorted(jt, tb))
             lo, hi = max(k - 8, 0), min(k + 8, len(jt))
-            if hi - lo < 8:
-                continue
             ts = (jt[lo:hi] - tb).astype(float) * 1e-9
             qs = jq[lo:hi]
+            if hi - lo < 8:  # too few for the two splines: the cubic's whole correction
+                if hi - lo >= 4:
+                    lin = np.array([np.interp(0.0, ts, qs[:, i]) for i in range(qs.shape[1])])
+                    err[b] = np.abs(CubicSpline(ts, qs, axis=0)(0.0) - lin)
+                elif hi - lo >= 2:  # a quarter of the travel across the record
+                    err[b] = 0.25 * np.abs(qs[-1] - qs[0])
+                continue
             full = CubicSpline(ts, qs, axis=0)(0.0)
             half = [CubicSpline(ts[i::2], qs[i::2], axis=0)(0.0) for i in (0, 1)]
             spacing = np.diff(ts)

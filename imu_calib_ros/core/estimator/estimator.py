@@ -85,6 +85,8 @@ MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS 
 # noise and read as bias walk by the NIS adaptation). The filter waits for joint states this
 # far beyond a chunk end (live and offline alike).
 CHAIN_STILL_HALF_WINDOW_S = 0.25
+#: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
+BRIDGE_JOINTS_AHEAD = 9
 
 
 class CalibrationEstimator:
@@ -449,7 +451,11 @@ class CalibrationEstimator:
                 t_after = int(t[a])
                 if a not in long_gaps and self._fill_gap(t_before, t_after, w[a], f[a]):
                     pass
-                elif a in long_gaps or not self._joints.still_between(t_before, t_after, tol):
+                elif a in long_gaps or self.guard_config.bridge_motion \
+                        or not self._joints.still_between(t_before, t_after, tol):
+                    # with bridge_motion every short gap is bridged (at rest the encoders
+                    # show no turn): whether the joints moved is not known live until their
+                    # states after the gap come, and a batch must do what the stream does
                     self._on_gap(t_before, t_after, a in long_gaps, w[a], f[a])
             # one block at a time, so that divergence is checked after every block
             i = a
@@ -486,8 +492,14 @@ class CalibrationEstimator:
         if not self._running:
             if not self._try_initialise():
                 return
-        if self._pending_bridge is not None and not self._bridge_motion(final):
-            return
+        if self._pending_bridge is not None:
+            try:
+                if not self._bridge_motion(final):
+                    return
+            except sm.ImplausibleErrors as exc:
+                self._declare_divergence(f'implausible sensor errors at the working point '
+                                         f'({exc})')
+                return
         t, w, f = self._imu.take()
         n = self._n
         h = self._half_span  # look-ahead for the rate differences (propagation)
@@ -1053,24 +1065,32 @@ class CalibrationEstimator:
         period_ns = int(round(self._nominal_dt * 1e9))
         can_bridge = (cfg.bridge_motion and not long and w_after is not None
                       and f_after is not None and period_ns > 0)
-        if self._pending_bridge is not None and not self._joints_beyond(
-                self._pending_bridge[1]) and can_bridge:
+        pb = self._pending_bridge
+        if pb is not None and not self._joints_beyond(pb[1]) and can_bridge \
+                and t_after_ns - pb[0] <= cfg.max_gap_s * 1e9:
             # another gap before the joint states of the pending bridge came (a 2 kHz IMU
-            # with jittered stamps): one bridge over both, the samples between them dropped
+            # with jittered stamps): one bridge over both (at most max_gap_s), the samples
+            # between them dropped
             assert w_after is not None and f_after is not None
             self.counters['imu_dropped_at_gap'] += self._imu.drop_all()
-            self._pending_bridge = (self._pending_bridge[0], t_after_ns - period_ns,
-                                    t_after_ns, w_after.copy(), f_after.copy(),
-                                    self._before_gap(t_before_ns))
+            self._pending_bridge = (pb[0], t_after_ns - period_ns, t_after_ns,
+                                    w_after.copy(), f_after.copy(), pb[5])
             return
         self._process(final=True)
         self._check_divergence()
-        if self._diverged is not None or self._filter is None:
+        if self._diverged is not None or self._filter is None or not self._running:
+            # a pending bridge fell back to re-initialising: what came before this gap goes
+            self.counters['imu_dropped_at_gap'] += self._imu.drop_all()
             return
         still = cfg.gap_policy == 'bridge' and self._joints.still_between(
             t_before_ns, t_after_ns, self.config.stationary_joint_tolerance_rad)
         if not still and can_bridge:
-            self._propagate_rest()  # to the gap: the bridge starts there
+            try:
+                self._propagate_rest()  # to the gap: the bridge starts there
+            except sm.ImplausibleErrors as exc:
+                self._declare_divergence(f'implausible sensor errors at the working point '
+                                         f'({exc})')
+                return
         left = self._imu.drop_all()
         if left:
             self.counters['imu_dropped_at_gap'] += left
@@ -1127,12 +1147,16 @@ class CalibrationEstimator:
         return t_before_ns, last[0].copy(), last[1].copy()
 
     def _joints_beyond(self, t_ns: int) -> bool:
-        """Whether joint states reach two of their mean spacings beyond ``t_ns``."""
+        """Whether joint states reach far enough beyond ``t_ns`` for everything a bridge
+        reads there (:data:`BRIDGE_JOINTS_AHEAD` samples of the spline's error estimate, a
+        chain's still-joint window), so that a bridge is the same whether the joint states
+        came long before or just in time."""
         jt = self._joints.t_ns
-        if not jt:
+        if len(jt) < 2:
             return False
-        spacing = (jt[-1] - jt[0]) / max(len(jt) - 1, 1)
-        return bool(jt[-1] >= t_ns + 2 * spacing)
+        spacing = (jt[-1] - jt[0]) / (len(jt) - 1)
+        lead = 0 if self.fixture.concurrent else int(CHAIN_STILL_HALF_WINDOW_S * 1e9)
+        return bool(jt[-1] >= t_ns + max(BRIDGE_JOINTS_AHEAD * spacing, lead))
 
     def _bridge_motion(self, final: bool) -> bool:
         """Carry the navigation across the pending gap in motion (:meth:`_on_gap`) with the
@@ -1167,6 +1191,16 @@ class CalibrationEstimator:
         spline2 = float(np.sum(self._joints.spline_error_at(np.array([t0, t1], np.int64)) ** 2))
         enc = max(self.guard_config.bridge_encoder_sigma_rad, self._encoder_scatter_rad)
         var_att = 2 * q.shape[1] * enc ** 2 + spline2  # both ends, every joint
+        jt = np.array(self._joints.t_ns, np.int64)
+        k = np.clip(np.searchsorted(jt, [t0, t1]), 1, len(jt) - 1)
+        if np.any(jt[k] - jt[k - 1] > self.guard_config.max_gap_s * 1e9):
+            self._reinitialise_at(t_after)  # a hole in the joint record longer than a gap
+            return False
+        if not self.fixture.concurrent:
+            # a joint's zero offset turns the axes after it: its error times their travel
+            travel = np.abs(q[1] - q[0])
+            later = np.cumsum(travel[::-1])[::-1] - travel
+            var_att += float(np.sum((self.config.chain_joint_offset_sigma_rad * later) ** 2))
         fx = self.fixture
         q = self._with_offsets(q)
         dF = fx.R_enu_imu(q[1]) @ fx.R_enu_imu(q[0]).T
