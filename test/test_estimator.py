@@ -178,6 +178,14 @@ def test_calibration_result_has_sigmas_and_fixed_keys(nav_run) -> None:
     assert np.allclose(res.errors.gyro_scale_misalignment, res.errors.gyro_scale_misalignment.T)
 
 
+def _push_in_stamp_order(est: CalibrationEstimator, joints: list, imus: list) -> None:
+    """The live node's path: joint states and IMU samples one at a time, in stamp order."""
+    events = sorted([(s.stamp_ns, 0, s) for s in joints] + [(s.stamp_ns, 1, s) for s in imus],
+                    key=lambda e: (e[0], e[1]))
+    for _, kind, s in events:
+        (est.push_joint if kind == 0 else est.push_imu)(s)
+
+
 def test_single_sample_pushes_equal_batch_push() -> None:
     """The live node's path (one sample at a time) is the replay path."""
     fx = load_fixture('three_axis')
@@ -192,11 +200,7 @@ def test_single_sample_pushes_equal_batch_push() -> None:
     a = CalibrationEstimator(fx, grade, cfg)
     jmask = sim.joints.stamps_ns <= t_end
     js = [sim.joints.sample(i) for i in np.nonzero(jmask)[0]]
-    ims = [sim.imu.sample(i) for i in range(n)]
-    events = sorted([(s.stamp_ns, 0, s) for s in js] + [(s.stamp_ns, 1, s) for s in ims],
-                    key=lambda e: (e[0], e[1]))
-    for _, kind, s in events:
-        (a.push_joint if kind == 0 else a.push_imu)(s)
+    _push_in_stamp_order(a, js, [sim.imu.sample(i) for i in range(n)])
     b = CalibrationEstimator(fx, grade, cfg)
     for s in js:
         b.push_joint(s)
@@ -261,11 +265,7 @@ def test_gaps_in_motion_are_bridged_alike_live_and_in_a_batch() -> None:
     cfg = EstimatorConfig()
     a = CalibrationEstimator(fx, grade, cfg)
     js = [sim.joints.sample(i) for i in np.nonzero(sim.joints.stamps_ns <= t_end)[0]]
-    ims = [sim.imu.sample(i) for i in idx]
-    events = sorted([(s.stamp_ns, 0, s) for s in js] + [(s.stamp_ns, 1, s) for s in ims],
-                    key=lambda e: (e[0], e[1]))
-    for _, kind, s in events:
-        (a.push_joint if kind == 0 else a.push_imu)(s)
+    _push_in_stamp_order(a, js, [sim.imu.sample(i) for i in idx])
     b = CalibrationEstimator(fx, grade, cfg)
     for s in js:
         b.push_joint(s)

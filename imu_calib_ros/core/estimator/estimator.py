@@ -252,7 +252,11 @@ class CalibrationEstimator:
         check the filter's health over that last stretch too."""
         if self._boot is not None:
             self._finish_bootstrap(final=True)
-        self._process(final=True)
+        self._flushing = True  # no more joint states: a pending bridge uses what is there
+        try:
+            self._process(final=True)
+        finally:
+            self._flushing = False
         self._check_divergence()
         self._record_history(force=True)
 
@@ -747,6 +751,7 @@ class CalibrationEstimator:
         self._pending_bridge: tuple[int, int, int, FloatArray, FloatArray,
                                     tuple[int, FloatArray, FloatArray] | None] | None = None
         self._encoder_scatter_rad = 0.0  # joint-angle scatter at rest (the alignment's)
+        self._flushing = False  # inside flush(): the end of the data
         self._latency_ns = 0 if self.start is None else int(round(
             self.start.joint_latency_s * 1e9))
         self._settle_until_ns: int | None = None
@@ -1173,7 +1178,8 @@ class CalibrationEstimator:
         """
         assert self._pending_bridge is not None
         t0, t1, t_after, w1, f1, before = self._pending_bridge
-        if not self._joints_beyond(t1):  # the joint states beyond t1 not there yet
+        at_end = self._flushing and bool(self._joints.t_ns) and self._joints.t_ns[-1] >= t1
+        if not self._joints_beyond(t1) and not at_end:  # joint states beyond t1 not there yet
             t_imu = self._imu.last_stamp_ns
             waited = 0 if t_imu is None else t_imu - t_after
             if not final and waited < self.config.max_pending_s * 1e9:
@@ -1198,9 +1204,16 @@ class CalibrationEstimator:
             return False
         if not self.fixture.concurrent:
             # a joint's zero offset turns the axes after it: its error times their travel
+            # (the offset's current sigma where it is a state, else its prior)
             travel = np.abs(q[1] - q[0])
             later = np.cumsum(travel[::-1])[::-1] - travel
-            var_att += float(np.sum((self.config.chain_joint_offset_sigma_rad * later) ** 2))
+            sig = np.full(len(travel), self.config.chain_joint_offset_sigma_rad)
+            if self.layout.n_joint_offsets:
+                sl = self.layout.slices[em.CHAIN_GROUP]
+                sd = np.sqrt(np.clip(np.diag(self._filter.P)[sl], 0.0, None)) \
+                    * self.layout.scale[sl]
+                sig[list(em.joint_offset_joints(self.fixture))] = sd
+            var_att += float(np.sum((sig * later) ** 2))
         fx = self.fixture
         q = self._with_offsets(q)
         dF = fx.R_enu_imu(q[1]) @ fx.R_enu_imu(q[0]).T
