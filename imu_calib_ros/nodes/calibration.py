@@ -657,6 +657,11 @@ class CalibrationNode(Node):
                                f'{lh.get("divergence_reason") or "see its diagnostics"}) before '
                                'a good estimate and restarts from its coarse start with the '
                                'next data')
+            if latest is not None and lh.get('imu_processed', 0) and lh.get('restarts', 0):
+                # it ran, diverged and restarted (not latched): not 'no data' either
+                return False, ('nothing to save yet: the estimator diverged and restarted '
+                               f'from its coarse start ({lh.get("restarts")} restart(s)) '
+                               'before a good estimate')
             return False, ('nothing to save: the estimator has not used any IMU data yet '
                            f'({health.get("imu_samples", 0)} samples received; it starts at a '
                            'stationary window with joint states)')
