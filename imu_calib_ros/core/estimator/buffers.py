@@ -247,14 +247,12 @@ class JointBuffer:
         above it: test_joint_buffer.py). Read from the 16 samples around each instant;
         with fewer than 8 there, the cubic's whole difference from the straight line."""
         from scipy.interpolate import CubicSpline
-        jt = np.array(self.t_ns, np.int64)
-        jq = np.array(self.q_rad)
-        err = np.zeros((len(t_ns), jq.shape[1]))
+        err = np.zeros((len(t_ns), len(self.q_rad[0]) if self.q_rad else 0))
         for b, tb in enumerate(t_ns):
-            k = int(np.searchsorted(jt, tb))
-            lo, hi = max(k - 8, 0), min(k + 8, len(jt))
-            ts = (jt[lo:hi] - tb).astype(float) * 1e-9
-            qs = jq[lo:hi]
+            k = bisect.bisect_left(self.t_ns, int(tb))
+            lo, hi = max(k - 8, 0), min(k + 8, len(self.t_ns))
+            ts = (np.array(self.t_ns[lo:hi], np.int64) - tb).astype(float) * 1e-9
+            qs = np.array(self.q_rad[lo:hi])
             if hi - lo < 8:  # too few for the two splines: the cubic's whole correction
                 if hi - lo >= 4:
                     lin = np.array([np.interp(0.0, ts, qs[:, i]) for i in range(qs.shape[1])])
@@ -269,6 +267,16 @@ class JointBuffer:
             hole = spacing[j - 1] > JOINT_HOLE_PERIODS * np.median(spacing)
             err[b] = np.max(np.abs(np.array(half) - full), axis=0) * (2.0 if hole else 0.5)
         return err
+
+    def bracket_spacing_ns(self, t_ns: IntArray) -> IntArray:
+        """The interval between the joint states around each instant (the buffer's first or
+        last interval outside it), read from those two samples only."""
+        out = np.zeros(len(t_ns), np.int64)
+        n = len(self.t_ns)
+        for b, tb in enumerate(t_ns):
+            k = min(max(bisect.bisect_left(self.t_ns, int(tb)), 1), n - 1)
+            out[b] = self.t_ns[k] - self.t_ns[k - 1]
+        return out
 
     def motion_at(self, t_ns: IntArray, still_tol_rad: float,
                   still_half_window_s: float = 0.0

@@ -68,7 +68,7 @@ from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_
                     white_noise_densities, white_noise_from_window)
 from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_correction, prior_point,
                      prior_shift, prior_sigmas, prior_vector)
-from .propagation import omega_dot_half_span, propagate_block
+from .propagation import Block, omega_dot_half_span, propagate_block
 from .result import (CONTRACT_KEYS, Estimate, calibration_result, estimator_extra,
                      parameter_covariance, snapshot_extra, values_of, with_values)
 
@@ -252,11 +252,7 @@ class CalibrationEstimator:
         check the filter's health over that last stretch too."""
         if self._boot is not None:
             self._finish_bootstrap(final=True)
-        self._flushing = True  # no more joint states: a pending bridge uses what is there
-        try:
-            self._process(final=True)
-        finally:
-            self._flushing = False
+        self._process(final=True, end=True)
         self._check_divergence()
         self._record_history(force=True)
 
@@ -490,15 +486,16 @@ class CalibrationEstimator:
         if self.counters['chunks'] != chunks:
             self._check_divergence()
 
-    def _process(self, final: bool = False) -> None:
+    def _process(self, final: bool = False, end: bool = False) -> None:
         """Run the buffered samples through the filter, whole blocks only (``final``: also a
-        last partial block, and without waiting for joint states)."""
+        last partial block, and without waiting for joint states; ``end``: the end of the
+        data, no more joint states will come)."""
         if not self._running:
             if not self._try_initialise():
                 return
         if self._pending_bridge is not None:
             try:
-                if not self._bridge_motion(final):
+                if not self._bridge_motion(final, end):
                     return
             except sm.ImplausibleErrors as exc:
                 self._declare_divergence(f'implausible sensor errors at the working point '
@@ -559,9 +556,7 @@ class CalibrationEstimator:
         lay = self.layout
         m = B * self._n
         om = self.fixture.site.omega_ie_enu
-        tau = self._theta_a[em.accel_cols('time_offset')][0]
-        blk = propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
-                              self._nominal_dt, B, self._n, lay, om)
+        blk = self._propagate(t, w, f, B, self._n)
         self.counters['gaps'] += blk.n_gaps
         # zero velocity with the lever arm, and the encoder attitude, at each chunk end
         chain = None if self.fixture.concurrent else self._chain_motion(t[blk.ends])
@@ -616,6 +611,16 @@ class CalibrationEstimator:
         self.counters['imu_processed'] += m
         self.counters['chunks'] += B
         self._record_history()
+
+    def _propagate(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray, B: int,
+                   n: int) -> Block:
+        """:func:`.propagation.propagate_block` of ``B`` chunks of ``n`` samples (plus the
+        look-ahead) from the navigator's state with the current estimate."""
+        assert self._nav is not None
+        tau = self._theta_a[em.accel_cols('time_offset')][0]
+        return propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
+                               self._nominal_dt, B, n, self.layout,
+                               self.fixture.site.omega_ie_enu)
 
     def _record_history(self, force: bool = False) -> None:
         """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""
@@ -751,7 +756,6 @@ class CalibrationEstimator:
         self._pending_bridge: tuple[int, int, int, FloatArray, FloatArray,
                                     tuple[int, FloatArray, FloatArray] | None] | None = None
         self._encoder_scatter_rad = 0.0  # joint-angle scatter at rest (the alignment's)
-        self._flushing = False  # inside flush(): the end of the data
         self._latency_ns = 0 if self.start is None else int(round(
             self.start.joint_latency_s * 1e9))
         self._settle_until_ns: int | None = None
@@ -1046,7 +1050,8 @@ class CalibrationEstimator:
     def _on_gap(self, t_before_ns: int, t_after_ns: int, long: bool = True,
                 w_after: FloatArray | None = None, f_after: FloatArray | None = None) -> None:
         """A gap longer than ``guard_config.max_gap_s`` between two accepted samples, or a
-        shorter one during which the joints moved (or whose joint data is not there yet).
+        shorter one (any, with ``bridge_motion``; else one during which the joints moved or
+        whose joint data is not there yet).
 
         The data before the gap is processed first (a partial chunk at its end is dropped and
         counted in ``imu_dropped_at_gap``, or propagated without an update before a motion
@@ -1058,7 +1063,7 @@ class CalibrationEstimator:
         ``'reinitialise'``: drop the navigator and the filter, keep the calibration states
         and their covariance block, and re-align at the next stationary window.
 
-        A gap shorter than ``max_gap_s`` during motion (``guard_config.bridge_motion``): the
+        A gap shorter than ``max_gap_s`` (``guard_config.bridge_motion``): the
         navigation is carried across it with the rotation the encoders measured
         (:meth:`_bridge_motion`, once joint states beyond the gap are there). Re-initialising
         lost the rest of every turn until the next stationary window: with 0.2-2 % of the
@@ -1133,10 +1138,7 @@ class CalibrationEstimator:
         t = np.concatenate([t, t[-1] + step * np.arange(1, h + 1, dtype=np.int64)])
         w = np.vstack([w, np.repeat(w[-1:], h, axis=0)])
         f = np.vstack([f, np.repeat(f[-1:], h, axis=0)])
-        tau = self._theta_a[em.accel_cols('time_offset')][0]
-        blk = propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
-                              self._nominal_dt, 1, m, self.layout,
-                              self.fixture.site.omega_ie_enu)
+        blk = self._propagate(t, w, f, 1, m)
         self._filter.predict_rows(blk.rows_s[0], np.diag(q1_s) * blk.T_s[0])
         if blk.n_gaps:
             widen_for_gaps(self._filter.P, self.layout, blk.n_gaps)
@@ -1163,7 +1165,7 @@ class CalibrationEstimator:
         lead = 0 if self.fixture.concurrent else int(CHAIN_STILL_HALF_WINDOW_S * 1e9)
         return bool(jt[-1] >= t_ns + max(BRIDGE_JOINTS_AHEAD * spacing, lead))
 
-    def _bridge_motion(self, final: bool) -> bool:
+    def _bridge_motion(self, final: bool, end: bool = False) -> bool:
         """Carry the navigation across the pending gap in motion (:meth:`_on_gap`) with the
         fixture rotation the encoders measured between the navigator's last instant ``t0`` and
         the start ``t1`` of the sample after the gap; the velocity from the fixture
@@ -1172,13 +1174,13 @@ class CalibrationEstimator:
         angle error at either end: the larger of ``bridge_encoder_sigma_rad`` and the
         encoder noise at rest, plus what the spline can miss there
         (:meth:`.buffers.JointBuffer.spline_error_at`). Waits (returns False) until joint
-        states beyond ``t1`` are there; re-initialises when they do not come (or at the end
-        of the data), or when the joint record does not cover both ends. Returns whether the
-        filter runs on.
+        states beyond ``t1`` are there (at the ``end`` of the data: what is there); re-initialises
+        when they do not come, or when the joint record does not cover both ends. Returns
+        whether the filter runs on.
         """
         assert self._pending_bridge is not None
         t0, t1, t_after, w1, f1, before = self._pending_bridge
-        at_end = self._flushing and bool(self._joints.t_ns) and self._joints.t_ns[-1] >= t1
+        at_end = end and bool(self._joints.t_ns) and self._joints.t_ns[-1] >= t1
         if not self._joints_beyond(t1) and not at_end:  # joint states beyond t1 not there yet
             t_imu = self._imu.last_stamp_ns
             waited = 0 if t_imu is None else t_imu - t_after
@@ -1197,22 +1199,20 @@ class CalibrationEstimator:
         spline2 = float(np.sum(self._joints.spline_error_at(np.array([t0, t1], np.int64)) ** 2))
         enc = max(self.guard_config.bridge_encoder_sigma_rad, self._encoder_scatter_rad)
         var_att = 2 * q.shape[1] * enc ** 2 + spline2  # both ends, every joint
-        jt = np.array(self._joints.t_ns, np.int64)
-        k = np.clip(np.searchsorted(jt, [t0, t1]), 1, len(jt) - 1)
-        if np.any(jt[k] - jt[k - 1] > self.guard_config.max_gap_s * 1e9):
+        if np.any(self._joints.bracket_spacing_ns(np.array([t0, t1], np.int64))
+                  > self.guard_config.max_gap_s * 1e9):
             self._reinitialise_at(t_after)  # a hole in the joint record longer than a gap
             return False
+        offs = self.layout.slices.get(em.CHAIN_GROUP)  # the offsets as states, if they are
         if not self.fixture.concurrent:
             # a joint's zero offset turns the axes after it: its error times their travel
             # (the offset's current sigma where it is a state, else its prior)
             travel = np.abs(q[1] - q[0])
             later = np.cumsum(travel[::-1])[::-1] - travel
             sig = np.full(len(travel), self.config.chain_joint_offset_sigma_rad)
-            if self.layout.n_joint_offsets:
-                sl = self.layout.slices[em.CHAIN_GROUP]
-                sd = np.sqrt(np.clip(np.diag(self._filter.P)[sl], 0.0, None)) \
-                    * self.layout.scale[sl]
-                sig[list(em.joint_offset_joints(self.fixture))] = sd
+            if offs is not None:
+                sig[list(self._offset_joints)] = np.sqrt(np.clip(
+                    np.diag(self._filter.P)[offs], 0.0, None)) * self.layout.scale[offs]
             var_att += float(np.sum((sig * later) ** 2))
         fx = self.fixture
         q = self._with_offsets(q)
@@ -1252,10 +1252,9 @@ class CalibrationEstimator:
         if chain is not None:
             v1 = v1 + chain[3][0]
             var_vel = var_vel + np.diag(chain[4][0])
-            if self.layout.n_joint_offsets:  # the offsets' share, no longer in chain[4]
-                sl = self.layout.slices[em.CHAIN_GROUP]
-                D = chain[6][0] * self.layout.scale[sl]  # m/s per filter unit
-                var_vel = var_vel + np.einsum('ij,jk,ik->i', D, self._filter.P[sl, sl], D)
+            if offs is not None:  # the offsets' share, no longer in chain[4]
+                D = chain[6][0] * self.layout.scale[offs]  # m/s per filter unit
+                var_vel = var_vel + np.einsum('ij,jk,ik->i', D, self._filter.P[offs, offs], D)
         q1_s = self._process_noise.q1_s
         assert q1_s is not None
         self._filter.P = bridge_motion_covariance(self._filter.P, self.layout, dF, Ru, R1, w_eb,

@@ -179,7 +179,12 @@ def bridge_gap(P: FloatArray, layout: StateLayout, q1_s: FloatArray, gap_s: floa
     s = layout.scale
     P[0:3, 0:3] += np.eye(3) * (guard_config.bridge_attitude_sigma_rad / s[0]) ** 2
     P[3:6, 3:6] += np.eye(3) * (guard_config.bridge_velocity_sigma_m_s / s[3]) ** 2
-    for grp in ('gyro_bias', 'accel_bias'):  # bias random walk continues in the gap
+    _add_bias_walk(P, layout, q1_s, gap_s)
+
+
+def _add_bias_walk(P: FloatArray, layout: StateLayout, q1_s: FloatArray, gap_s: float) -> None:
+    """The biases' random walk over a gap (``q1_s``: Q per second, scaled), into ``P``."""
+    for grp in ('gyro_bias', 'accel_bias'):
         if grp in layout.slices:
             sl = layout.slices[grp]
             P[sl, sl] += q1_s[sl, sl] * gap_s
@@ -219,10 +224,7 @@ def bridge_motion_covariance(P: FloatArray, layout: StateLayout, dF_enu: FloatAr
     Qv = np.zeros((n, n))
     Qv[3:6, 3:6] = np.diag(var_vel_m2_s2) / s[3] ** 2
     P2 = Vs @ P1 @ Vs.T + Qv
-    for grp in ('gyro_bias', 'accel_bias'):  # the bias random walk continues in the gap
-        if grp in layout.slices:
-            sl = layout.slices[grp]
-            P2[sl, sl] += q1_s[sl, sl] * gap_s
+    _add_bias_walk(P2, layout, q1_s, gap_s)  # the bias random walk continues in the gap
     return 0.5 * (P2 + P2.T)
 
 
