@@ -66,22 +66,36 @@ def known_calibration(tmp: Path, frame_id: str = 'imu_link') -> tuple[Calibratio
 
 
 def feed_imu(ros: Node, pub: Any, stamps: Any, gyro: Any, accel: Any,
-             got: list[Any] | None = None, in_flight: int = 50) -> None:
+             got: list[Any] | None = None, in_flight: int = 50,
+             answer_s: float = 30.0) -> int:
     """Publish raw IMU samples at ~500 Hz of wall time, spinning the test node between them.
 
-    With ``got`` (the node's output as it arrives) at most ``in_flight`` samples are ahead of
-    it: on a loaded machine the node's best-effort input and its reliable keep-last output
-    otherwise drop a burst that the test never meant to be an overload test (the stamps, not
-    the wall-clock pace, carry the rate the node measures).
+    With ``got`` (the node's output as it arrives) the samples go one at a time until the node
+    answers the first: a best-effort reader matches its writer a moment after the writer saw
+    the reader (DDS discovery), and what is published in between is lost. The node's stream
+    then starts at the first sample it got, and the returned index says which one. After that
+    at most ``in_flight`` samples are ahead of the output: on a loaded machine the node's
+    best-effort input and its reliable keep-last output otherwise drop a burst that the test
+    never meant to be an overload test (the stamps, not the wall-clock pace, carry the rate
+    the node measures). An output that stays behind for ``answer_s`` fails at once (a lost
+    sample would otherwise hold every later one for the whole wait).
     """
     from sensor_msgs.msg import Imu
     for k in range(len(stamps)):
-        if got is not None and k - len(got) >= in_flight:
-            spin_until(ros, lambda: k - len(got) < in_flight, 10.0)
+        if got is not None and not got and k > 0:
+            spin_until(ros, lambda: bool(got), 5.0)  # the handshake: one at a time
+        elif got is not None and k - len(got) >= in_flight:
+            assert spin_until(ros, lambda: k - len(got) < in_flight, answer_s), \
+                f'the node answered {len(got)} of {k} samples'
         pub.publish(imu_msg_from_sample(ImuSample(int(stamps[k]), gyro[k], accel[k],
                                                   'imu_link'), Imu))
         rclpy.spin_once(ros, timeout_sec=0.0)
         time.sleep(0.002)
+    if got is None:
+        return 0
+    assert spin_until(ros, lambda: bool(got), answer_s), 'the node answered no sample'
+    first = got[0].header.stamp.sec * 10**9 + got[0].header.stamp.nanosec
+    return int(np.searchsorted(np.asarray(stamps, dtype=np.int64), first))
 
 
 def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> None:
@@ -104,7 +118,11 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
         t = (stamps - stamps[0]) * 1e-9
         gyro = np.c_[np.sin(3 * t), 0.5 * np.cos(2 * t), 0.2 * t] + rng.normal(0, 1e-3, (n, 3))
         accel = np.c_[0.1 * t, -0.2 + 0 * t, 9.81 + 0 * t] + rng.normal(0, 1e-2, (n, 3))
-        feed_imu(ros, pub, stamps, gyro, accel, got)
+        first = feed_imu(ros, pub, stamps, gyro, accel, got)
+        # the node's stream starts at the first sample it got (see feed_imu)
+        stamps, gyro, accel, n, gap = stamps[first:], gyro[first:], accel[first:], n - first, \
+            150 - first
+        assert gap > 50, first
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
     finally:
         log = stop(proc)
@@ -124,7 +142,7 @@ def test_compensator_stamps_values_bit_for_bit(ros: Node, tmp_path: Path) -> Non
     # last bit: BLAS matmul is not row-independent), omega_dot from
     # the causal difference with the 1.5-period gap rule
     omega_dot = mean_rate_derivative(stamps, gyro, causal=True, nominal_period_s=0.005)
-    assert np.all(omega_dot[150] == 0) and np.any(omega_dot[151] != 0)
+    assert np.all(omega_dot[gap] == 0) and np.any(omega_dot[gap + 1] != 0)
     ref = [compensate(calib.errors, gyro[k:k + 1], accel[k:k + 1],
                       omega_dot_imu_rad_s2=omega_dot[k:k + 1]) for k in range(n)]
     omega_ref = np.vstack([r[0] for r in ref])
@@ -319,7 +337,10 @@ def test_calibration_node_detects_the_imu_rate(ros: Node, tmp_path: Path) -> Non
         assert spin_until(ros, lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 60.0), stop(proc)
         time.sleep(0.5)
-        feed_imu(ros, pub, stamps, gyro, accel, got)
+        first = feed_imu(ros, pub, stamps, gyro, accel, got)
+        # the node's stream starts at the first sample it got (see feed_imu)
+        stamps, gyro, accel, n = stamps[first:], gyro[first:], accel[first:], n - first
+        assert n > 200, first
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
 
         def last_values() -> dict[str, str]:
@@ -382,8 +403,8 @@ def test_compensator_warns_when_the_configured_rate_is_wrong(ros: Node, tmp_path
         assert spin_until(ros, lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 60.0), stop(proc)
         time.sleep(0.5)
-        feed_imu(ros, pub, 9_000_000_000 + 10_000_000 * np.arange(n), np.zeros((n, 3)),
-                 np.tile([0.0, 0.0, 9.8], (n, 1)), got)
+        n -= feed_imu(ros, pub, 9_000_000_000 + 10_000_000 * np.arange(n), np.zeros((n, 3)),
+                      np.tile([0.0, 0.0, 9.8], (n, 1)), got)
         assert spin_until(ros, lambda: len(got) >= n, 30.0), f'{len(got)} of {n}'
         assert spin_until(ros, lambda: comp_status() is not None
                           and comp_status().level == b'\x01', 30.0)

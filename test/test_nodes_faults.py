@@ -123,13 +123,16 @@ def stream(w: Wiring, t0_ns: int, n: int, period_ns: int, joints: list[str] | No
     """Publish n IMU samples (at rest, level) and joints every 5th; returns good stamps.
     Samples ``k in skip`` are never sent (lost upstream). At most 50 good samples ahead of
     the node's corrected output (as test_nodes.feed_imu): on a loaded machine a burst left
-    the node behind and the wait for every corrected sample timed out."""
+    the node behind and the wait for every corrected sample timed out. An output that stays
+    behind for 30 s fails the test."""
     good: list[int] = []
     base = len(w.corrected)
     for k in range(n):
         ns = t0_ns + k * period_ns
         if len(good) - (len(w.corrected) - base) >= 50:
-            spin_until(w.ros, lambda: len(good) - (len(w.corrected) - base) < 50, 10.0)
+            # fails at once: a lost sample would hold every later one for the whole wait
+            assert spin_until(w.ros, lambda: len(good) - (len(w.corrected) - base) < 50,
+                              30.0), f'the node answered {len(w.corrected) - base} of {len(good)}'
         if clock:
             w.set_clock(ns)
         b = bad(k)

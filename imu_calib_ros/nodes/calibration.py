@@ -662,6 +662,10 @@ class CalibrationNode(Node):
                 return False, ('nothing to save yet: the estimator diverged and restarted '
                                f'from its coarse start ({lh.get("restarts")} restart(s)) '
                                'before a good estimate')
+            if latest is not None and latest.error:
+                # it refused the data (e.g. the coarse start: the gyros do not follow the
+                # fixture's joints): that reason, not 'no data'
+                return False, f'nothing to save: {latest.error}'
             return False, ('nothing to save: the estimator has not used any IMU data yet '
                            f'({health.get("imu_samples", 0)} samples received; it starts at a '
                            'stationary window with joint states)')
