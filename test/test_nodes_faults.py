@@ -120,16 +120,23 @@ class Wiring:
 def stream(w: Wiring, t0_ns: int, n: int, period_ns: int, joints: list[str] | None,
            bad: Callable[[int], tuple[Any, Any, str] | None] = lambda k: None,
            clock: bool = False, skip: frozenset[int] = frozenset()) -> list[int]:
-    """Publish n IMU samples (at rest, level) and joints every 5th; returns good stamps.
-    Samples ``k in skip`` are never sent (lost upstream). At most 50 good samples ahead of
-    the node's corrected output (as test_nodes.feed_imu): on a loaded machine a burst left
-    the node behind and the wait for every corrected sample timed out. An output that stays
-    behind for 30 s fails the test."""
+    """Publish n IMU samples (at rest, level) and joints every 5th; returns the good stamps
+    from the first one the node answered. Samples ``k in skip`` are never sent (lost
+    upstream). As test_nodes.feed_imu: one at a time until the node answers the first good
+    sample (what a best-effort reader gets before it has matched the writer is lost), then at
+    most 50 good samples ahead of the node's corrected output (on a loaded machine a burst
+    left the node behind and the wait for every corrected sample timed out). An output that
+    stays behind for 30 s fails the test."""
     good: list[int] = []
     base = len(w.corrected)
+
+    def answered() -> bool:
+        return len(w.corrected) > base
     for k in range(n):
         ns = t0_ns + k * period_ns
-        if len(good) - (len(w.corrected) - base) >= 50:
+        if good and not answered():
+            spin_until(w.ros, answered, 5.0)  # the handshake
+        elif len(good) - (len(w.corrected) - base) >= 50:
             # fails at once: a lost sample would hold every later one for the whole wait
             assert spin_until(w.ros, lambda: len(good) - (len(w.corrected) - base) < 50,
                               30.0), f'the node answered {len(w.corrected) - base} of {len(good)}'
@@ -147,7 +154,12 @@ def stream(w: Wiring, t0_ns: int, n: int, period_ns: int, joints: list[str] | No
             w.joints.publish(joint_msg(ns, joints))
         rclpy.spin_once(w.ros, timeout_sec=0.0)
         time.sleep(period_ns * 1e-9)
-    return good
+    if not good:
+        return good
+    assert spin_until(w.ros, answered, 30.0), 'the node answered no sample'
+    m = w.corrected[base]
+    first = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+    return [s for s in good if s >= first]
 
 
 def test_samples_lost_upstream_are_counted(ros: Node, tmp_path: Path) -> None:
