@@ -24,9 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg.lapack import dpotrf as _potrf
 from scipy.linalg.lapack import dpotrs as _potrs
-from scipy.stats import chi2
 
 from ..rotation import skew
+from .quantiles import chi2_ppf
 from .error_model import StateLayout
 
 FloatArray = NDArray[np.float64]
@@ -183,7 +183,7 @@ class ErrorStateFilter:
 
     def _threshold(self, m: int) -> float:
         if m not in self._gate:
-            self._gate[m] = (float(chi2.ppf(self.gate_probability, m))
+            self._gate[m] = (chi2_ppf(self.gate_probability, m)
                              if self.gate_probability < 1.0 else np.inf)
         return self._gate[m]
 

@@ -73,9 +73,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_factor, cho_solve
-from scipy.stats import binom, chi2, norm
 
 from .measurements import MEASUREMENT_DOF
+from .quantiles import binom_isf, chi2_isf, chi2_ppf, chi2_sf, norm_isf
 
 FloatArray = NDArray[np.float64]
 
@@ -235,8 +235,8 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
         if t is None or t.accepted == 0:
             continue
         dof = t.dof * t.accepted
-        limit = float(chi2.isf(a, dof))
-        low = float(chi2.ppf(a, dof))
+        limit = chi2_isf(a, dof)
+        low = chi2_ppf(a, dof)
         note = ' (below its band: pessimistic noise)' if t.nis_sum < low else ''
         partial = '' if ev.nis_complete else ' (sums of the filters seen; some missed)'
         ratio = t.nis_sum / dof
@@ -254,11 +254,11 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
     n_rej = sum(t.rejected for t in ev.nis.values())
     if n_upd:
         # the gate's false-alarm probability under the scaled noise model (NIS x scale)
-        q_gate = float(chi2.isf(max(1.0 - ev.gate_probability, 1e-300), MEASUREMENT_DOF))
-        p0 = float(chi2.sf(q_gate / max(ev.covariance_scale, 1.0), MEASUREMENT_DOF)) \
+        q_gate = chi2_isf(max(1.0 - ev.gate_probability, 1e-300), MEASUREMENT_DOF)
+        p0 = chi2_sf(q_gate / max(ev.covariance_scale, 1.0), MEASUREMENT_DOF) \
             if ev.gate_probability < 1.0 else 0.0
         # the smallest count whose upper-tail probability is below alpha
-        limit_r = int(binom.isf(a, n_upd, p0)) if p0 > 0 else 0
+        limit_r = binom_isf(a, n_upd, p0) if p0 > 0 else 0
         tolerated = max(limit_r, int(cfg.max_gated_fraction * n_upd))
         checks.append(Check('gate', n_rej <= tolerated, n_rej, tolerated,
                             f'{n_rej} of {n_upd} measurement updates gated (a consistent filter '
@@ -272,7 +272,7 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
                             'model does not describe'))
     w = ev.windows
     if w is not None and w.dof > 0:
-        limit = float(chi2.isf(a, w.dof))
+        limit = chi2_isf(a, w.dof)
         checks.append(Check('windows.chi2', w.chi2 <= limit, w.chi2 / w.dof, limit / w.dof,
                             f'stationary-window residuals chi2/dof {w.chi2 / w.dof:.3g} over '
                             f'{w.windows} windows, above {limit / w.dof:.3g}'))
@@ -288,7 +288,7 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
 def worst_bound(alpha: float, n: int) -> float:
     """``|y|`` bound of the largest of ``n`` independent N(0, 1) at false alarm ``alpha``."""
     per = 1.0 - (1.0 - alpha) ** (1.0 / max(n, 1))
-    return float(norm.isf(per / 2.0))
+    return norm_isf(per / 2.0)
 
 
 def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: FloatArray,
