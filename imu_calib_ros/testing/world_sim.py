@@ -286,7 +286,9 @@ class WorldConfig:
     messages lost in bursts of geometric length (mean ``drop_burst_mean``).
     ``receipt_delay_s``: None (log time = header stamp) or (lo, hi) uniform receipt delay.
     ``joint_order``: 'fixture', 'reversed' or 'shuffled'; ``extra_joint``: add a joint the
-    fixture does not know (CONTRACT 1: ignored by consumers).
+    fixture does not know (CONTRACT 1: ignored by consumers). ``encoder_zero_rad``: each
+    joint's encoder reads its true angle minus this (a table whose zero references are off:
+    the fixture file knows none of it), one value per fixture joint, or empty for none.
     """
 
     imu_rate_hz: float = 100.0
@@ -294,6 +296,7 @@ class WorldConfig:
     joint_rate_hz: float = 100.0
     joint_latency_s: float = 0.0
     encoder_noise_rad: float = 1e-6
+    encoder_zero_rad: tuple[float, ...] = ()
     wrap_joints: bool = False
     joint_velocities: bool = True
     joint_order: str = 'fixture'
@@ -557,6 +560,11 @@ def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
     q, qd, _ = profile.evaluate(j * dtj_ns * 1e-9 - cfg.joint_latency_s)
     if cfg.encoder_noise_rad > 0.0 and cfg.noise:
         q = q + rng_enc.normal(0.0, cfg.encoder_noise_rad, q.shape)
+    if cfg.encoder_zero_rad:
+        if len(cfg.encoder_zero_rad) != q.shape[1]:
+            raise ValueError(f'encoder_zero_rad: {len(cfg.encoder_zero_rad)} values for '
+                             f'{q.shape[1]} joints')
+        q = q - np.asarray(cfg.encoder_zero_rad, float)
     if cfg.wrap_joints:
         q = math.pi - np.mod(math.pi - q, 2.0 * math.pi)  # (-pi, pi]
     names = list(fx.joint_names)
@@ -636,6 +644,7 @@ def _truth(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting, cfg: 
             'gravity_m_s2': float(fx.gravity), 'earth_rate_rad_s': float(fx.earth_rate_rad_s),
             'imu_samples': n, 'imu_samples_written': n_kept, 'joint_states': m,
             'joint_states_written': m_kept, 'encoder_noise_rad': float(cfg.encoder_noise_rad),
+            'encoder_zero_rad': [float(v) for v in cfg.encoder_zero_rad],
             'wrap_joints': bool(cfg.wrap_joints), 'joint_velocities': bool(cfg.joint_velocities),
             'joint_order': cfg.joint_order, 'extra_joint': bool(cfg.extra_joint),
             'quantize': bool(cfg.quantize and cfg.noise), 'gl_nodes': int(cfg.gl_nodes),

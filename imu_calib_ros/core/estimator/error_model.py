@@ -216,13 +216,20 @@ def _labels(group_sizes: tuple[tuple[str, int], ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def joint_offset_joints(fixture: Any) -> tuple[int, ...]:
-    """The joints of a general chain whose zero offsets are states: the revolute joints
-    before the last (the last one's *is* a mounting rotation about its axis, the mounting is
-    the IMU's on the last link as its encoder reads it: docs/ESTIMATOR.md "General chains");
-    none on a turntable (concurrent axes)."""
-    if getattr(fixture, 'concurrent', True):
+def joint_offset_joints(fixture: Any, attitude_aiding: bool = False) -> tuple[int, ...]:
+    """The joints whose zero offsets are states: the revolute joints before the last (the
+    last one's *is* a mounting rotation about its axis, the mounting is the IMU's on the last
+    link as its encoder reads it: docs/ESTIMATOR.md "General chains"). A general chain's
+    always; a turntable's (concurrent axes) with encoder attitude aiding only, the one
+    measurement an encoder zero enters there (with none, a table's zero errors only move the
+    stationary windows' poses, which the self-check takes as nuisance)."""
+    if getattr(fixture, 'concurrent', True) and not attitude_aiding:
         return ()
+    return nuisance_offset_joints(fixture)
+
+
+def nuisance_offset_joints(fixture: Any) -> tuple[int, ...]:
+    """The revolute joints before the last: those whose zero offsets are not the mounting."""
     return tuple(j for j in range(fixture.n_joints - 1) if fixture.joints[j].revolute)
 
 

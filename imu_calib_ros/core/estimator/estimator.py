@@ -336,6 +336,19 @@ class CalibrationEstimator:
                                           parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
 
+    @property
+    def offset_joints(self) -> tuple[int, ...]:
+        """The joints whose zero offsets are states (:func:`.error_model.joint_offset_joints`)."""
+        return tuple(self._offset_joints)
+
+    def joint_offsets_rad(self) -> FloatArray:
+        """The current zero offset of every joint (n,) [rad]: the states' estimates, 0 where
+        a joint's is not a state."""
+        out = np.zeros(self.fixture.n_joints)
+        if self.layout.n_joint_offsets:
+            out[list(self._offset_joints)] = self._joint_offsets
+        return out
+
     def _offset_names(self) -> dict[str, Any]:
         """The joints of the ``joint_offset_rad`` extra (a general chain), by name."""
         if not self._offset_joints:
@@ -731,7 +744,7 @@ class CalibrationEstimator:
             groups = groups + ('mounting',)
         self.dropped_groups = tuple(g for g in groups if not np.all(self._prior[g] > 0.0))
         # a general chain's joint zero offsets (issue 15): states with their prior sigma
-        self._offset_joints = (em.joint_offset_joints(self.fixture)
+        self._offset_joints = (em.joint_offset_joints(self.fixture, self.attitude_aiding)
                                if cfg.estimate_joint_offset
                                and cfg.chain_joint_offset_sigma_rad > 0 else ())
         self._prior[em.CHAIN_GROUP] = np.full(len(self._offset_joints),

@@ -36,7 +36,7 @@ def calibration_truth(est: Any, sim: Any) -> NDArray[np.float64]:
         x[lay.slices['mounting']] = Rotation.from_matrix(R_m).as_rotvec()
     if lay.n_joint_offsets:
         x[lay.slices[em.CHAIN_GROUP]] = joint_offsets_truth(fx, tf)[
-            list(em.joint_offset_joints(fx))]
+            list(est.offset_joints)]
     return x[6:]
 
 
