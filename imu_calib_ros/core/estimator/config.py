@@ -62,8 +62,9 @@ class EstimatorConfig:
         'prior of their states (or, with estimate_joint_offset off, their bound in the chain '
         'velocity and encoder attitude noise)', 0.0)
     estimate_joint_offset: bool = setting(
-        True, 'general chains: estimate the zero offsets of the revolute joints before the last '
-        '(one state each; the last one is the mounting); off: bounded in the measurement noise')
+        True, 'general chains, and turntables with encoder attitude aiding: estimate the zero '
+        'offsets of the revolute joints before the last (one state each; the last one is the '
+        'mounting); off: bounded in the measurement noise (chains) or not modelled (tables)')
     chain_link_sigma_m: float = setting(
         2e-3, 'one sigma of the chain\'s joint-origin errors, per coordinate', 0.0)
     chain_encoder_sigma_rad: float = setting(
