@@ -30,6 +30,7 @@ the pieces (CubicSpline, polar, lstsq, allantools) are scipy's/allantools'.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -40,6 +41,7 @@ from scipy.interpolate import CubicSpline
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
+from ..rotation import skew
 from . import error_model as em
 
 if TYPE_CHECKING:
@@ -121,6 +123,9 @@ class CoarseStart:
     n_static_windows: int
     duration_s: float
     notes: tuple[str, ...] = field(default=())
+    #: a turntable's encoder zeros the windows' gravity shows (n,) [rad]: the joint is at
+    #: ``q + joint_zero_rad`` when its encoder reads ``q`` (:func:`fit_joint_zeros`)
+    joint_zero_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
 
     def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT
                    ) -> bool:
@@ -581,6 +586,80 @@ def _accels_pinned(fits: list[tuple[FloatArray, FloatArray]], accel_limit: float
     return bool(max(float(np.max(np.sqrt(var[0:3]))) for _, var in fits) < accel_limit)
 
 
+#: prior sigma of a table's encoder zero [rad] in :func:`fit_joint_zeros` (lab tables'
+#: zero references: a fraction of a degree)
+JOINT_ZERO_PRIOR_RAD = 0.01
+#: a zero is applied when its fit stands out by this many sigmas (else it stays 0)
+JOINT_ZERO_SIGNIFICANCE = 3.0
+
+
+def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: float,
+                    rounds: int = 8) -> tuple[FloatArray, FloatArray]:
+    """A turntable's encoder zeros from the stationary windows' gravity: ``(zero (n,),
+    sigma (n,))`` [rad], 0 and inf where not fitted.
+
+    The joint is at ``q + z`` when its encoder reads ``q``; a zero error of a joint before
+    the last turns everything after it about the joint's axis, ``R(q + z_j e_j) = Rot(u_j z_j)
+    R(q)``, so gravity in the IMU frame moves by ``R^T [g x] u_j z_j`` at each window. The
+    last joint's zero is a mounting rotation and the outer (vertical) one's a heading,
+    which gravity does not see; between them (a three-axis table's middle joint) the
+    direction changes with the inner angle, which the accelerometers' constant matrix cannot
+    absorb. Gauss-Newton on ``f = A g_nom(q + z) + aa |A g_nom| + ba`` per window, jointly in
+    ``A`` (3 x 3), ``aa``, ``ba`` and ``z`` with the accelerometer fit's weak priors
+    (:func:`_fit_accels`) and ``JOINT_ZERO_PRIOR_RAD``, so the zeros' sigmas are marginal
+    over the accelerometer errors; a zero is kept where it stands out by
+    ``JOINT_ZERO_SIGNIFICANCE`` sigmas. Without it a navigation unit on a table whose zeros
+    were off (4, 3, -2 mrad) started from fits bent by them, and its first outer-axis turn
+    gated its updates (the run refused, every value right).
+    """
+    n = fixture.n_joints
+    zero, sig = np.zeros(n), np.full(n, np.inf)
+    joints = [j for j in em.nuisance_offset_joints(fixture)]
+    if not getattr(fixture, 'concurrent', False) or not joints or len(wins) < 6:
+        return zero, sig
+    m = len(joints)
+    g_enu = np.array([0.0, 0.0, fixture.site.gravity])
+    qw = np.array([win.q_rad for win in wins])
+    fm = np.array([win.accel_mean_m_s2 for win in wins])
+    K = len(wins)
+    rw = np.sqrt(np.array([win.n for win in wins], float)) / (noise_a / math.sqrt(dt))
+    # parameters: A (row-major, 9), aa (3), ba (3), z (m); priors as _fit_accels' and the zeros'
+    p = np.concatenate([np.eye(3).ravel(), np.zeros(6 + m)])
+    p0 = p.copy()
+    sd = np.concatenate([np.full(9, 3e-2), np.full(3, 3e-3), np.full(3, 1.0),
+                         np.full(m, JOINT_ZERO_PRIOR_RAD)])
+    cov = np.diag(sd ** 2)
+    for _ in range(rounds):
+        A, aa, ba, z = p[:9].reshape(3, 3), p[9:12], p[12:15], p[15:]
+        qz = qw.copy()
+        qz[:, joints] += z
+        R = fixture.R_enu_imu(qz)
+        g_nom = np.einsum('kji,j->ki', R, g_enu)
+        g_a = g_nom @ A.T
+        r = (fm - (g_a + aa * np.abs(g_a) + ba)) * rw[:, None]  # (K, 3)
+        J = np.zeros((K, 3, 15 + m))
+        for i in range(3):
+            J[:, i, 3 * i:3 * i + 3] = g_nom * (1.0 + aa[i] * np.sign(g_a[:, i]))[:, None]
+            J[:, i, 9 + i] = np.abs(g_a[:, i])
+            J[:, i, 12 + i] = 1.0
+        u = fixture.joint_axes_enu(qz)[:, joints]  # (K, m, 3)
+        d = np.einsum('kji,jl,kml->kim', R, skew(g_enu), u)  # d g_nom / d z
+        J[:, :, 15:] = np.einsum('ab,kbm->kam', A, d) * (1.0 + aa * np.sign(g_a))[:, :, None]
+        J *= rw[:, None, None]
+        Jm = J.reshape(3 * K, -1)
+        info = Jm.T @ Jm + np.diag(sd ** -2.0)
+        cov = np.linalg.inv(info)
+        step = cov @ (Jm.T @ r.reshape(-1) - (p - p0) / sd ** 2)
+        p = p + step
+        if np.all(np.abs(step[15:]) < 1e-8):
+            break
+    z, s_z = p[15:], np.sqrt(np.diag(cov)[15:])
+    keep = np.abs(z) > JOINT_ZERO_SIGNIFICANCE * s_z
+    zero[joints] = np.where(keep, z, 0.0)
+    sig[joints] = s_z
+    return zero, sig
+
+
 def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                  t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
@@ -623,6 +702,16 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         noise_g, noise_a = (white_noise_density(w[:k], dt, point_samples),
                             white_noise_density(f[:k], dt, point_samples))
         notes.append('no stationary window: noise from the first samples (motion included)')
+    # --- a table's encoder zeros, from the windows' gravity: the joints from here on are at
+    # q + zero (the fits below, and the filter's joint record)
+    zero, zero_sig = fit_joint_zeros(fixture, wins, noise_a, dt)
+    if np.any(zero):
+        qj = qj + zero
+        spline = CubicSpline(tj, qj, axis=0)
+        wins = [dataclasses.replace(win, q_rad=win.q_rad + zero) for win in wins]
+        notes.append('encoder zeros from the windows\' gravity: ' + ', '.join(
+            f'{fixture.joint_names[j]} {zero[j] * 1e3:+.3f} +- {zero_sig[j] * 1e3:.3f} mrad'
+            for j in np.flatnonzero(zero)))
     # --- samples used by the regressions: inside the joint record, thinned if very many
     inside = (ts - dt > tj[0] + MAX_LATENCY_S) & (ts < tj[-1] - MAX_LATENCY_S)
     idx = np.nonzero(inside)[0]
@@ -779,4 +868,4 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     theta_a = np.where(np.isfinite(sig_a), theta_a, 0.0)
     return CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
                        noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
-                       tuple(notes))
+                       tuple(notes), zero)

@@ -233,7 +233,7 @@ class CalibrationEstimator:
         if q is not None and self._boot is not None:
             self._boot.hold_joints(np.array([sample.stamp_ns], np.int64), q[None, :])
         elif q is not None:  # joint stamps minus the measured latency: the instants they describe
-            self._joints.append(int(sample.stamp_ns) - self._latency_ns, q)
+            self._joints.append(int(sample.stamp_ns) - self._latency_ns, q + self._joint_zero)
         self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
@@ -244,7 +244,7 @@ class CalibrationEstimator:
         if len(t) and self._boot is not None:
             self._boot.hold_joints(t, q)
         elif len(t):
-            self._joints.extend(t - self._latency_ns, q)
+            self._joints.extend(t - self._latency_ns, q + self._joint_zero)
         self._sync_input_counters()
 
     def flush(self) -> None:
@@ -771,6 +771,10 @@ class CalibrationEstimator:
         self._encoder_scatter_rad = 0.0  # joint-angle scatter at rest (the alignment's)
         self._latency_ns = 0 if self.start is None else int(round(
             self.start.joint_latency_s * 1e9))
+        # a table's encoder zeros the coarse start measured: the joints are at q + this
+        z0 = None if self.start is None else self.start.joint_zero_rad
+        self._joint_zero = (np.asarray(z0, float) if z0 is not None and len(z0)
+                            else np.zeros(self.fixture.n_joints))
         self._settle_until_ns: int | None = None
         self._unsettled = False  # feedback after every update at the next alignment
         self._gated_run = 0
@@ -798,7 +802,7 @@ class CalibrationEstimator:
             if item[0] == 'imu':
                 self._accept_imu(*item[1:])
             elif len(item[1]):
-                self._joints.extend(item[1] - self._latency_ns, item[2])
+                self._joints.extend(item[1] - self._latency_ns, item[2] + self._joint_zero)
         return True
 
     def _try_initialise(self) -> bool:
