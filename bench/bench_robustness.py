@@ -19,7 +19,8 @@ Factors
   nav/tactical, 100 Hz for MEMS);
 - true-error size: 0.2 or 1.0 of the class maximum;
 - mounting: ``none`` (nominal) or ``large`` (U(1, 10) deg about a random axis, reference
-  point offset U(5, 50) mm in a random direction);
+  point offset U(5, 50) mm in a random direction, and the table's encoder zeros off by
+  U(0.5, 5) mrad each, random signs: ``WorldConfig.encoder_zero_rad``, session 10);
 - timing: ``nominal`` (interval means, joints 100 Hz, no latency); ``latency`` (joint
   stamps = true time +- U(1, 50) ms); ``point`` (point samples); ``slow_joints`` (joint
   states at U(10, 20) Hz); ``fast_jitter`` (nav only: IMU 2 kHz, rosbag2-like log times
@@ -258,6 +259,9 @@ class Drawn:
                                  (c.joint_order, c.joint_order != 'fixture'),
                                  ('extra-joint', c.extra_joint),
                                  ('log-jitter', c.receipt_delay_s is not None)) if on]
+        if c.encoder_zero_rad:
+            bits.append('zeros (' + ', '.join(f'{1e3 * v:+.1f}' for v in c.encoder_zero_rad)
+                        + ') mrad')
         if c.drop_fraction_imu or c.drop_fraction_joint:
             bits.append(f'dropped imu {100 * c.drop_fraction_imu:.1f}%/joints '
                         f'{100 * c.drop_fraction_joint:.1f}%')
@@ -299,6 +303,10 @@ def draw_case(case: Case) -> Drawn:
     if not ctrl and rng.random() < 0.5:  # a driver that drops messages, in bursts of ~5
         cfg = dataclasses.replace(cfg, drop_fraction_imu=float(rng.uniform(0.002, 0.02)),
                                   drop_fraction_joint=float(rng.uniform(0.0, 0.05)))
+    if case.mount == 'large':  # and the table's encoder zeros off (drawn last, as the drops)
+        n = {'three_axis': 3, 'savage_2axis': 2}[case.fixture]
+        cfg = dataclasses.replace(cfg, encoder_zero_rad=tuple(
+            float(v) for v in rng.choice([-1.0, 1.0], n) * rng.uniform(0.5e-3, 5e-3, n)))
     return Drawn(unit, mounting, cfg, plan_seed)
 
 
