@@ -660,11 +660,35 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     return zero, sig
 
 
+class _ZerosMisled(ValueError):
+    """The fitted encoder zeros left the start implausible."""
+
+
 def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                  t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
                  max_samples: int = 60_000, only_determined: bool = False,
                  point_samples: bool = False) -> CoarseStart | None:
+    """The start point (:func:`_coarse_start`), with a table's encoder zeros fitted first
+    (:func:`fit_joint_zeros`); when the start with them is implausible or contradicts the
+    data (a fixture error the zeros tried to explain: a 0.3 deg tilted axis fitted as a
+    7 mrad zero, then an accelerometer scale of -85 %), the start without them, whose own
+    checks name what is wrong."""
+    args = (t_imu_ns, w, f, t_joint_ns, q_joint, fixture, min_static_s, tol_rad, max_samples,
+            only_determined, point_samples)
+    try:
+        return _coarse_start(*args, joint_zeros=True)
+    except NoRotation:
+        raise
+    except (ValueError, np.linalg.LinAlgError):
+        return _coarse_start(*args, joint_zeros=False)
+
+
+def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
+                  t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
+                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
+                  max_samples: int = 60_000, only_determined: bool = False,
+                  point_samples: bool = False, joint_zeros: bool = True) -> CoarseStart | None:
     """The start point from interval-mean IMU samples and (unwrapped) joint states.
 
     ``only_determined``: None, before the gyro fits, when the accelerometer fit already shows
@@ -704,7 +728,8 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         notes.append('no stationary window: noise from the first samples (motion included)')
     # --- a table's encoder zeros, from the windows' gravity: the joints from here on are at
     # q + zero (the fits below, and the filter's joint record)
-    zero, zero_sig = fit_joint_zeros(fixture, wins, noise_a, dt)
+    zero, zero_sig = (fit_joint_zeros(fixture, wins, noise_a, dt) if joint_zeros
+                      else (np.zeros(fixture.n_joints), np.full(fixture.n_joints, np.inf)))
     if np.any(zero):
         qj = qj + zero
         spline = CubicSpline(tj, qj, axis=0)
@@ -866,6 +891,9 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # mounting rotation mixed into it
     theta_g = np.where(np.isfinite(sig_g), theta_g, 0.0)
     theta_a = np.where(np.isfinite(sig_a), theta_a, 0.0)
-    return CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
-                       noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
-                       tuple(notes), zero)
+    st = CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
+                     noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
+                     tuple(notes), zero)
+    if np.any(zero) and implausible(st) is not None:
+        raise _ZerosMisled(implausible(st))
+    return st
