@@ -98,6 +98,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import glob
 import hashlib
 import inspect
 import json
@@ -355,6 +356,11 @@ def ensure_bag(case: Case, cache: Path) -> tuple[Path, Path, float, bool]:
         if d.exists():
             shutil.rmtree(d)
         os.replace(tmp, d)
+        # the case's bags of older generator sources: never read again (the cache had
+        # grown to 46 GB over a few sessions and filled the disk)
+        for old in cache.glob(f'{glob.escape(case.name)}-*'):
+            if old != d and old.is_dir() and (old / 'case.json').exists():
+                shutil.rmtree(old, ignore_errors=True)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
