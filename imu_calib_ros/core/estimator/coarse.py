@@ -557,6 +557,11 @@ def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOI
     return (np.round(tb).astype(np.int64) + t0), qb
 
 
+#: the accelerometer window fit's weak prior per axis: matrix row (3 %), asymmetry (0.3 %),
+#: bias (1 m/s^2), in :func:`_fit_accels` and :func:`fit_joint_zeros`
+ACCEL_FIT_PRIOR_SD = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
+
+
 def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: float
                 ) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
     """The accelerometer fit on the window means, ``f = A g_nom + aa |f| + ba`` per axis:
@@ -572,7 +577,7 @@ def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: floa
     # 0.3 %, bias 100 mg) keeps what the windows do not separate (with only the six
     # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
     # unmeasured); the quadratic term is left to the filter
-    sd0 = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
+    sd0 = ACCEL_FIT_PRIOR_SD
     rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
     Xa = np.hstack([g_nom, np.zeros((len(wins), 1)), np.ones((len(wins), 1))])
     for _ in range(2):  # |f_i| regressor from the previous round's prediction
@@ -622,7 +627,7 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     """
     n = fixture.n_joints
     zero, sig = np.zeros(n), np.full(n, np.inf)
-    joints = [j for j in em.nuisance_offset_joints(fixture)]
+    joints = list(em.nuisance_offset_joints(fixture))
     if not getattr(fixture, 'concurrent', False) or not joints or len(wins) < 6:
         return zero, sig
     m = len(joints)
@@ -634,7 +639,8 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     # parameters: A (row-major, 9), aa (3), ba (3), z (m); priors as _fit_accels' and the zeros'
     p = np.concatenate([np.eye(3).ravel(), np.zeros(6 + m)])
     p0 = p.copy()
-    sd = np.concatenate([np.full(9, 3e-2), np.full(3, 3e-3), np.full(3, 1.0),
+    a_sd = ACCEL_FIT_PRIOR_SD
+    sd = np.concatenate([np.tile(a_sd[0:3], 3), np.full(3, a_sd[3]), np.full(3, a_sd[4]),
                          np.full(m, JOINT_ZERO_PRIOR_RAD)])
     cov = np.diag(sd ** 2)
     for _ in range(rounds):
@@ -903,6 +909,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     st = CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
                      noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
                      tuple(notes), zero, zero_sig)
-    if np.any(zero) and implausible(st) is not None:
-        raise _ZerosMisled(implausible(st))
+    why = implausible(st) if np.any(zero) else None
+    if why is not None:
+        raise _ZerosMisled(why)
     return st

@@ -233,7 +233,7 @@ class CalibrationEstimator:
         if q is not None and self._boot is not None:
             self._boot.hold_joints(np.array([sample.stamp_ns], np.int64), q[None, :])
         elif q is not None:  # joint stamps minus the measured latency: the instants they describe
-            self._joints.append(int(sample.stamp_ns) - self._latency_ns, q + self._joint_zero)
+            self._joints.append(*self._recorded(int(sample.stamp_ns), q))
         self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
@@ -244,7 +244,7 @@ class CalibrationEstimator:
         if len(t) and self._boot is not None:
             self._boot.hold_joints(t, q)
         elif len(t):
-            self._joints.extend(t - self._latency_ns, q + self._joint_zero)
+            self._joints.extend(*self._recorded(t, q))
         self._sync_input_counters()
 
     def flush(self) -> None:
@@ -336,17 +336,23 @@ class CalibrationEstimator:
                                           parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
 
+    def _recorded(self, t_ns: Any, q: FloatArray) -> tuple[Any, FloatArray]:
+        """Joint stamps and angles as the joint record holds them: the stamps minus the
+        measured latency (the instants they describe), the angles plus the table's encoder
+        zeros the coarse start measured."""
+        return t_ns - self._latency_ns, q + self._joint_zero
+
     @property
     def offset_joints(self) -> tuple[int, ...]:
         """The joints whose zero offsets are states (:func:`.error_model.joint_offset_joints`)."""
         return tuple(self._offset_joints)
 
     def joint_offsets_rad(self) -> FloatArray:
-        """The current zero offset of every joint (n,) [rad]: the states' estimates, 0 where
-        a joint's is not a state."""
-        out = np.zeros(self.fixture.n_joints)
+        """The current zero offset of every joint (n,) [rad] against its encoder reading: the
+        coarse start's encoder zeros plus the states' estimates where they are states."""
+        out = np.array(self._joint_zero, float)
         if self.layout.n_joint_offsets:
-            out[list(self._offset_joints)] = self._joint_offsets
+            out[list(self._offset_joints)] += self._joint_offsets
         return out
 
     def _offset_names(self) -> dict[str, Any]:
@@ -802,7 +808,7 @@ class CalibrationEstimator:
             if item[0] == 'imu':
                 self._accept_imu(*item[1:])
             elif len(item[1]):
-                self._joints.extend(item[1] - self._latency_ns, item[2] + self._joint_zero)
+                self._joints.extend(*self._recorded(item[1], item[2]))
         return True
 
     def _try_initialise(self) -> bool:
