@@ -48,6 +48,8 @@ engineering unit (``scale``, ``unit``).
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
 import os
 from dataclasses import dataclass
@@ -149,8 +151,11 @@ def make_case(tmp_path: str | os.PathLike[str], unit: str = 'nav', size: float =
               sample_type: str = 'interval_mean', joint_rate_hz: float = 100.0,
               imu_rate_hz: float = 100.0, seed: int = 0, plan: str = 'demo_short',
               fixture: str = 'three_axis', noise: bool = True,
+              unit_noise: dict[str, Any] | None = None,
               **config: Any) -> tuple[Path, CaseTruth]:
-    """Generate a named small case in ``tmp_path`` (module docstring); returns (bag, truth)."""
+    """Generate a named small case in ``tmp_path`` (module docstring); returns (bag, truth).
+    ``unit_noise``: fields of the drawn unit's :class:`~.world_units.UnitNoise` to replace (a
+    unit outside its class's noise ranges)."""
     fx_path = _fixture_path(fixture).resolve()
     name = (f'{unit}-s{size:g}-m{mount_deg:g}-o{offset_mm:g}-l{latency_ms:g}-{sample_type}'
             f'-j{joint_rate_hz:g}-i{imu_rate_hz:g}-{Path(str(plan)).stem}-{fx_path.stem}-{seed}')
@@ -164,6 +169,10 @@ def make_case(tmp_path: str | os.PathLike[str], unit: str = 'nav', size: float =
         plan_obj = plan
     profile = joint_profile(plan_obj, fx_path)
     u = draw_unit(unit, size, rng_unit)
+    if unit_noise:
+        u = dataclasses.replace(u, noise=dataclasses.replace(u.noise, **unit_noise))
+        name += '-' + hashlib.sha256(repr(sorted(unit_noise.items())).encode()).hexdigest()[:8]
+        out = Path(tmp_path) / name
 
     def direction() -> np.ndarray:
         v = rng_mount.normal(size=3)

@@ -872,6 +872,12 @@ class CalibrationEstimator:
         return (k * pn.white[0], k * pn.white[1], pn.scale * pn.bias_q[0],
                 pn.scale * pn.bias_q[1])
 
+    def bias_walk_growth(self) -> tuple[float, float, float, float]:
+        """The bias walk this run ended with (raised from the stationary windows, adapted from
+        the innovations) against the one it started with: ``(q_gyro, q_accel, ratio_gyro,
+        ratio_accel)`` (:meth:`.noise.ProcessNoise.grown`)."""
+        return self._process_noise.grown()
+
     def nis_totals(self) -> dict[str, tuple[int, int, float]]:
         """Whole-run gate counts per measurement kind over every filter of the run:
         ``{kind: (accepted, rejected, sum of the accepted updates' NIS)}``."""

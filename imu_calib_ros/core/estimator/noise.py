@@ -144,6 +144,7 @@ class ProcessNoise:
         self.seed = (0.0, 0.0)  # the walk the adaptation seeded, when none was known
         self.floor = (0.0, 0.0)  # the walk the run's stationary windows showed (raise_walk)
         self.scale = 1.0  # the adaptation's factor on the walk
+        self.initial: tuple[float, float] | None = None  # the walk the run's first filter used
         self.q1_s: FloatArray | None = None  # diagonal Q per second, scaled units
         self._layout: StateLayout | None = None
 
@@ -152,7 +153,18 @@ class ProcessNoise:
         self._layout = layout
         self.bias_q = (max(bias_q[0], self.seed[0], self.floor[0]),
                        max(bias_q[1], self.seed[1], self.floor[1]))
+        if self.initial is None:
+            self.initial = self.bias_q
         self._update()
+
+    def grown(self) -> tuple[float, float, float, float]:
+        """The walk in use now against the one the run's first filter started with:
+        ``(q_gyro, q_accel, ratio_gyro, ratio_accel)`` (PSDs; ratio inf from a zero start)."""
+        q0 = self.initial or (0.0, 0.0)
+        q = (self.scale * self.bias_q[0], self.scale * self.bias_q[1])
+        ratio = tuple(q[i] / q0[i] if q0[i] > 0 else (math.inf if q[i] > 0 else 1.0)
+                      for i in range(2))
+        return q[0], q[1], ratio[0], ratio[1]
 
     def raise_walk(self, q: tuple[float, float], factor: float = 1.5) -> bool:
         """Item 5 in the run: the stationary windows at one pose drift apart by more than the
