@@ -29,6 +29,12 @@ def test_norm_isf(q: float) -> None:
     assert qt.norm_isf(q) == pytest.approx(stats.norm.isf(q), rel=1e-12, abs=1e-15)
 
 
+@pytest.mark.parametrize('dof', [1, 4, 30, 1000])
+@pytest.mark.parametrize('q', [1e-4, 1e-3, 0.05])
+def test_t_isf(dof: int, q: float) -> None:
+    assert qt.t_isf(q, dof) == pytest.approx(stats.t.isf(q, dof), rel=1e-9)
+
+
 def test_the_replay_path_does_not_import_scipy_stats() -> None:
     """The estimator, its self-check and the replay CLI start without scipy.stats."""
     import subprocess

@@ -43,6 +43,7 @@ from scipy.spatial.transform import Rotation
 
 from ..rotation import skew
 from . import error_model as em
+from .quantiles import t_isf
 
 if TYPE_CHECKING:
     from ..fixture import Fixture
@@ -269,8 +270,11 @@ def pair_walk(t_mid_s: FloatArray, T_s: FloatArray, means: FloatArray, white: fl
     Between two windows a mean changes by white noise (``white^2 / T`` each), by a constant
     scatter (a pose-dependent misfit, a misjudged white noise) and by the bias walk, growing
     with the time between: ``y = E[(m_j - m_i)^2] - s_i^2 - s_j^2 = a + q |t_j - t_i|``,
-    fitted by least squares. Only a slope that stands out counts (t > 3, its standard error
-    that of the windows the pairs use, not of the pairs that share them).
+    fitted by least squares. Only a slope that stands out counts (its standard error that of
+    the windows the pairs use, not of the pairs that share them; beyond the Student-t quantile
+    :data:`WALK_FALSE_ALARM` for that many windows less two: with t > 3 over the few windows
+    of a plan's first minutes, a run checked every minute took white noise for a walk in 1-2.5
+    % of runs, which then held the walk for good).
 
     Returns ``(q or 0, y, |t_j - t_i|)`` per pair (PSD per second; ``y`` and the time
     differences for callers that fit more).
@@ -285,7 +289,19 @@ def pair_walk(t_mid_s: FloatArray, T_s: FloatArray, means: FloatArray, white: fl
     cov = (np.linalg.pinv(X.T @ X) * float(r @ r) / max(len(y) - 2, 1)
            * max(len(y) / used, 1.0))  # never more independent than the pairs
     q, sq = float(beta[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
-    return (q if q > 0 and q > 3 * sq else 0.0), y, dt
+    return (q if q > 0 and q > walk_threshold(used) * sq else 0.0), y, dt
+
+
+#: one-sided false-alarm probability of each test that a bias walk stands out (:func:`pair_walk`,
+#: ``RunLedger.bias_walk``)
+WALK_FALSE_ALARM = 3e-3
+
+
+def walk_threshold(windows: int) -> float:
+    """How many standard errors a walk estimate from ``windows`` stationary windows must
+    stand out by: the Student-t quantile of :data:`WALK_FALSE_ALARM` with ``windows - 2``
+    degrees of freedom (2.8 for many windows, 5.3 for six)."""
+    return t_isf(WALK_FALSE_ALARM, max(windows - 2, 1))
 
 
 def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: float) -> float:

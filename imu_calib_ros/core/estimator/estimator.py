@@ -873,9 +873,9 @@ class CalibrationEstimator:
                 pn.scale * pn.bias_q[1])
 
     def bias_walk_growth(self) -> tuple[float, float, float, float]:
-        """The bias walk this run ended with (raised from the stationary windows, adapted from
-        the innovations) against the one it started with: ``(q_gyro, q_accel, ratio_gyro,
-        ratio_accel)`` (:meth:`.noise.ProcessNoise.grown`)."""
+        """The largest bias walk this run's stationary windows showed against the one it
+        started with: ``(q_gyro, q_accel, ratio_gyro, ratio_accel)``
+        (:meth:`.noise.ProcessNoise.grown`)."""
         return self._process_noise.grown()
 
     def nis_totals(self) -> dict[str, tuple[int, int, float]]:

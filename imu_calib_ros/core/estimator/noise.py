@@ -145,6 +145,7 @@ class ProcessNoise:
         self.floor = (0.0, 0.0)  # the walk the run's stationary windows showed (raise_walk)
         self.scale = 1.0  # the adaptation's factor on the walk
         self.initial: tuple[float, float] | None = None  # the walk the run's first filter used
+        self.measured = (0.0, 0.0)  # the largest walk the stationary windows showed (raise_walk)
         self.q1_s: FloatArray | None = None  # diagonal Q per second, scaled units
         self._layout: StateLayout | None = None
 
@@ -158,10 +159,13 @@ class ProcessNoise:
         self._update()
 
     def grown(self) -> tuple[float, float, float, float]:
-        """The walk in use now against the one the run's first filter started with:
-        ``(q_gyro, q_accel, ratio_gyro, ratio_accel)`` (PSDs; ratio inf from a zero start)."""
+        """The walk the stationary windows showed (:meth:`raise_walk`) against the one the
+        run's first filter started with: ``(q_gyro, q_accel, ratio_gyro, ratio_accel)``
+        (PSDs; ratio inf from a zero start). Not the innovations' adaptation (:meth:`adapt`):
+        it doubles both groups on evidence that names neither, and a pass started with it
+        adapts again (a tactical unit's gyro-bias sigma 3.4x its noise limit)."""
         q0 = self.initial or (0.0, 0.0)
-        q = (self.scale * self.bias_q[0], self.scale * self.bias_q[1])
+        q = self.measured
         ratio = tuple(q[i] / q0[i] if q0[i] > 0 else (math.inf if q[i] > 0 else 1.0)
                       for i in range(2))
         return q[0], q[1], ratio[0], ratio[1]
@@ -174,6 +178,7 @@ class ProcessNoise:
         changed = False
         bq = list(self.bias_q)
         fl = list(self.floor)
+        self.measured = (max(self.measured[0], q[0]), max(self.measured[1], q[1]))
         for i in range(2):
             if q[i] > factor * self.scale * bq[i]:
                 bq[i] = q[i] / self.scale

@@ -36,3 +36,8 @@ def binom_isf(q: float, n: int, p: float) -> int:
 def norm_isf(q: float) -> float:
     """``x`` with ``P(N(0, 1) > x) = q`` (``scipy.stats.norm.isf``)."""
     return float(-special.ndtri(q))
+
+
+def t_isf(q: float, dof: float) -> float:
+    """``x`` with ``P(t(dof) > x) = q`` (``scipy.stats.t.isf``)."""
+    return float(special.stdtrit(dof, 1.0 - q))

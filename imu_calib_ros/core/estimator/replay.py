@@ -107,8 +107,8 @@ def moved_beyond_linear(est: CalibrationEstimator) -> str:
     return text
 
 
-#: a pass whose bias walk grew by more than this (PSD ratio: 2x in sigma) while it ran
-#: (raised from the stationary windows, adapted from the innovations) linearised and weighted
+#: a pass whose stationary windows showed a bias walk more than this (PSD ratio: 2x in sigma)
+#: above the one it started with linearised and weighted
 #: everything before the growth with a walk the data then contradicted: another pass assumes
 #: the grown walk from its start (issue 11 item 5; measured on a MEMS unit with 10x less white
 #: noise than its 8 deg/h instability implies: windows chi2/dof 3.3, g-sensitivity 10 sigma
@@ -117,9 +117,10 @@ WALK_GROWTH = 4.0
 
 
 def walk_grown(est: CalibrationEstimator) -> tuple[str, Any]:
-    """``(why, start)``: when the pass's bias walk grew beyond :data:`WALK_GROWTH`, why
-    (``'gyro bias walk grew 55x (...)'``) and the coarse start with the grown walk as the walk
-    it measured (the next pass assumes it from its start); else ``('', None)``."""
+    """``(why, start)``: when the walk the pass's stationary windows showed grew beyond
+    :data:`WALK_GROWTH` (:meth:`.noise.ProcessNoise.grown`), why (``'gyro bias walk grew
+    55x (...)'``) and the coarse start with the grown walk as the walk it measured (the next
+    pass assumes it from its start); else ``('', None)``."""
     q_g, q_a, r_g, r_a = est.bias_walk_growth()
     st = est.start
     if st is None or max(r_g, r_a) <= WALK_GROWTH:
@@ -128,11 +129,14 @@ def walk_grown(est: CalibrationEstimator) -> tuple[str, Any]:
              for what, q, r, unit in (('gyro', q_g, r_g, 'rad/s/sqrt(s)'),
                                       ('accelerometer', q_a, r_a, 'm/s^2/sqrt(s)'))
              if r > WALK_GROWTH]
-    grown = dataclasses.replace(
-        st, gyro_bias_random_walk_rad_s2_rt_hz=max(st.gyro_bias_random_walk_rad_s2_rt_hz,
-                                                  math.sqrt(q_g)),
-        accel_bias_random_walk_m_s3_rt_hz=max(st.accel_bias_random_walk_m_s3_rt_hz,
-                                              math.sqrt(q_a)))
+    # only the group that grew: the other keeps what the pass started with
+    grown = st
+    if r_g > WALK_GROWTH:
+        grown = dataclasses.replace(grown, gyro_bias_random_walk_rad_s2_rt_hz=max(
+            st.gyro_bias_random_walk_rad_s2_rt_hz, math.sqrt(q_g)))
+    if r_a > WALK_GROWTH:
+        grown = dataclasses.replace(grown, accel_bias_random_walk_m_s3_rt_hz=max(
+            st.accel_bias_random_walk_m_s3_rt_hz, math.sqrt(q_a)))
     return '; '.join(parts) + ': the next pass assumes it from its start', grown
 
 
