@@ -32,6 +32,7 @@ file) have their own modules; the names they used to have here are re-exported.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 import math
@@ -85,6 +86,10 @@ MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS 
 # noise and read as bias walk by the NIS adaptation). The filter waits for joint states this
 # far beyond a chunk end (live and offline alike).
 CHAIN_STILL_HALF_WINDOW_S = 0.25
+#: the gyro-minus-encoder rate differences kept, and needed, for the rates' weights
+#: (:meth:`CalibrationEstimator._rate_weight`)
+RATE_DIFF_KEEP = 4000
+RATE_DIFF_MIN = 200
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
 BRIDGE_JOINTS_AHEAD = 9
 
@@ -163,6 +168,8 @@ class CalibrationEstimator:
         self._joints = JointBuffer(self.counters)
         self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
         self._half_span = 1  # samples each side of an omega_dot difference (propagation)
+        # squared gyro-minus-encoder rate differences at chunk ends in motion (rate_weight)
+        self._rate_d2: collections.deque[float] = collections.deque(maxlen=RATE_DIFF_KEEP)
         self._nominal_dt = 0.0
         self._n = 1  # samples per chunk
         self._t0_ns: int | None = None
@@ -656,17 +663,18 @@ class CalibrationEstimator:
 
     def _encoder_rate_imu(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray,
                           w_gyro: FloatArray) -> FloatArray:
-        """The inertial rate at the chunk ends for the lever arm's velocity on a turntable,
-        from the encoders (earth rate + ``sum_j u_j qd_j`` in ENU, into the IMU frame by the
-        navigated attitude) where joint states cover them, else the gyros' ``w_gyro``.
+        """The inertial rate at the chunk ends for the lever arm's velocity on a turntable:
+        the gyros' and the encoders' (earth rate + ``sum_j u_j qd_j`` in ENU, into the IMU
+        frame by the navigated attitude), weighted by their noise (:meth:`_rate_weight`).
 
         The gyros' rate there is the mean of the two samples either side of the instant; the
         same two samples' noise is the boundary term of the size effect's ``omega_dot``
         regressor over the chunk. Times the lever arm, that shared noise biased the size
-        effect: with a MEMS gyro (2.5e-3 rad/s per sample at 100 Hz) and a 34 mm lever arm,
-        by ~2 mm (2 sigma; 36 sigma with 10x less accelerometer noise, as the bias stays).
-        The encoders' noise is the IMU's own of nothing. Used where encoder attitude aiding is
-        on (the gyros cannot hold attitude: MEMS and tactical units)."""
+        effect: with a MEMS gyro (1.8e-3 rad/s for the two samples at 100 Hz) and a 34 mm lever
+        arm, by ~2 mm (2 sigma; 36 sigma with 10x less accelerometer noise, as the bias stays).
+        The encoders' rate shares no noise with the IMU, but a spline's derivative through
+        20 urad of encoder noise has ~2e-3 rad/s: more than a tactical gyro's (the encoders'
+        alone left a tactical unit's size effect 4.6 sigma off)."""
         covered, q_e, qd_e = self._joints.motion_at(
             t_ns, self.config.stationary_joint_tolerance_rad, CHAIN_STILL_HALF_WINDOW_S)
         if q_e is None or qd_e is None:
@@ -674,7 +682,26 @@ class CalibrationEstimator:
         axes = self.fixture.angular_axes_enu(self._with_offsets(q_e))  # (B, n, 3)
         w_enu = np.einsum('bjk,bj->bk', axes, qd_e) + self.fixture.site.omega_ie_enu
         w_enc = np.einsum('bji,bj->bi', R_enu_imu, w_enu)  # R^T w_enu
-        return np.where(covered[:, None], w_enc, w_gyro)
+        moving = covered & (np.abs(qd_e).max(axis=1) > 0.0)
+        if moving.any():
+            self._rate_d2.extend(np.mean((w_gyro[moving] - w_enc[moving]) ** 2, axis=1).tolist())
+        a = self._rate_weight()
+        return np.where(covered[:, None], a * w_enc + (1.0 - a) * w_gyro, w_gyro)
+
+    def _rate_weight(self) -> float:
+        """The encoders' weight in :meth:`_encoder_rate_imu`, ``s_g^2 / (s_g^2 + s_e^2)``:
+        ``s_g^2`` the gyros' per-axis variance of the two-sample mean (white-noise density
+        ``N``: ``N^2 / (2 dt)``), ``s_e^2`` the encoders' rate variance, what the squared
+        differences of the two rates in motion (median / 0.789: chi-square of 3 per 3) hold
+        beyond ``s_g^2`` (the calibration's remaining rate errors count as the encoders':
+        they weigh toward the gyros). 0 (the gyros alone) before :data:`RATE_DIFF_MIN`
+        differences."""
+        if len(self._rate_d2) < RATE_DIFF_MIN or self._nominal_dt <= 0:
+            return 0.0
+        s_g2 = self._process_noise.white[0] ** 2 / (2.0 * self._nominal_dt)
+        total = float(np.median(np.fromiter(self._rate_d2, float))) / 0.789
+        s_e2 = max(total - s_g2, 1e-3 * s_g2)
+        return s_g2 / (s_g2 + s_e2)
 
     def _chain_motion(self, t_ns: NDArray[np.int64]) -> tuple[
             NDArray[np.bool_], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
