@@ -32,7 +32,6 @@ file) have their own modules; the names they used to have here are re-exported.
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import logging
 import math
@@ -86,10 +85,15 @@ MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS 
 # noise and read as bias walk by the NIS adaptation). The filter waits for joint states this
 # far beyond a chunk end (live and offline alike).
 CHAIN_STILL_HALF_WINDOW_S = 0.25
-#: the gyro-minus-encoder rate differences kept, and needed, for the rates' weights
-#: (:meth:`CalibrationEstimator._rate_weight`)
-RATE_DIFF_KEEP = 4000
-RATE_DIFF_MIN = 200
+#: the latest joint samples whose second differences give the encoders' noise (and the
+#: fewest that do), :meth:`CalibrationEstimator._rate_weight`
+ENCODER_NOISE_SAMPLES = 4000
+ENCODER_NOISE_MIN = 50
+#: rms derivative of a cubic spline through unit white noise at unit spacing, at instants
+#: spread over the intervals (1.17 at the knots; numerical, scipy's not-a-knot spline)
+SPLINE_RATE_NOISE = 1.57
+#: median |q[k+1] - 2 q[k] + q[k-1]| of unit white noise: 0.6745 sqrt(6)
+MEDIAN_SECOND_DIFFERENCE = 1.652
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
 BRIDGE_JOINTS_AHEAD = 9
 
@@ -168,8 +172,6 @@ class CalibrationEstimator:
         self._joints = JointBuffer(self.counters)
         self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
         self._half_span = 1  # samples each side of an omega_dot difference (propagation)
-        # squared gyro-minus-encoder rate differences at chunk ends in motion (rate_weight)
-        self._rate_d2: collections.deque[float] = collections.deque(maxlen=RATE_DIFF_KEEP)
         self._nominal_dt = 0.0
         self._n = 1  # samples per chunk
         self._t0_ns: int | None = None
@@ -682,25 +684,30 @@ class CalibrationEstimator:
         axes = self.fixture.angular_axes_enu(self._with_offsets(q_e))  # (B, n, 3)
         w_enu = np.einsum('bjk,bj->bk', axes, qd_e) + self.fixture.site.omega_ie_enu
         w_enc = np.einsum('bji,bj->bi', R_enu_imu, w_enu)  # R^T w_enu
-        moving = covered & (np.abs(qd_e).max(axis=1) > 0.0)
-        if moving.any():
-            self._rate_d2.extend(np.mean((w_gyro[moving] - w_enc[moving]) ** 2, axis=1).tolist())
         a = self._rate_weight()
         return np.where(covered[:, None], a * w_enc + (1.0 - a) * w_gyro, w_gyro)
 
     def _rate_weight(self) -> float:
-        """The encoders' weight in :meth:`_encoder_rate_imu`, ``s_g^2 / (s_g^2 + s_e^2)``:
-        ``s_g^2`` the gyros' per-axis variance of the two-sample mean (white-noise density
-        ``N``: ``N^2 / (2 dt)``), ``s_e^2`` the encoders' rate variance, what the squared
-        differences of the two rates in motion (median / 0.789: chi-square of 3 per 3) hold
-        beyond ``s_g^2`` (the calibration's remaining rate errors count as the encoders':
-        they weigh toward the gyros). 0 (the gyros alone) before :data:`RATE_DIFF_MIN`
-        differences."""
-        if len(self._rate_d2) < RATE_DIFF_MIN or self._nominal_dt <= 0:
+        """The encoders' weight in :meth:`_encoder_rate_imu`, ``s_g^2 / (s_g^2 + s_e^2)``
+        per IMU axis: ``s_g^2 = N^2 / (2 dt)``, the gyros' two-sample mean (white-noise
+        density ``N``); ``s_e^2 = sum_j (1.57 s_j / dt_j)^2 / 3``, the spline's rate through
+        each joint's encoder noise ``s_j`` (from the median second difference of its latest
+        samples: motion and quantization included, a move's own acceleration negligible at
+        the joint rate) over the joints' median sample spacing ``dt_j``. 0 (the gyros alone)
+        without enough joint samples."""
+        jb = self._joints
+        if len(jb) < ENCODER_NOISE_MIN or self._nominal_dt <= 0:
             return 0.0
+        jt = np.array(jb.t_ns[-ENCODER_NOISE_SAMPLES:], np.int64)
+        jq = np.array(jb.q_rad[-ENCODER_NOISE_SAMPLES:], float)
+        dt_j = float(np.median(np.diff(jt))) * 1e-9
+        d2 = jq[2:] - 2.0 * jq[1:-1] + jq[:-2]
+        d2 = np.where(np.abs(d2) > np.pi, 0.0, d2)  # wrapped at +-pi
+        s_j = np.median(np.abs(d2), axis=0) / MEDIAN_SECOND_DIFFERENCE
+        s_e2 = float(np.sum((SPLINE_RATE_NOISE * s_j / max(dt_j, 1e-6)) ** 2)) / 3.0
         s_g2 = self._process_noise.white[0] ** 2 / (2.0 * self._nominal_dt)
-        total = float(np.median(np.fromiter(self._rate_d2, float))) / 0.789
-        s_e2 = max(total - s_g2, 1e-3 * s_g2)
+        if s_g2 <= 0.0:
+            return 0.0
         return s_g2 / (s_g2 + s_e2)
 
     def _chain_motion(self, t_ns: NDArray[np.int64]) -> tuple[
