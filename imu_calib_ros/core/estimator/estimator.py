@@ -94,6 +94,7 @@ ENCODER_NOISE_MIN = 50
 SPLINE_RATE_NOISE = 1.57
 #: median |q[k+1] - 2 q[k] + q[k-1]| of unit white noise: 0.6745 sqrt(6)
 MEDIAN_SECOND_DIFFERENCE = 1.652
+RATE_WEIGHT_EVERY = 20  # blocks between two estimates of the encoders' weight
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
 BRIDGE_JOINTS_AHEAD = 9
 
@@ -172,6 +173,8 @@ class CalibrationEstimator:
         self._joints = JointBuffer(self.counters)
         self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
         self._half_span = 1  # samples each side of an omega_dot difference (propagation)
+        self._rate_a: float | None = None  # the encoders' weight in the lever arm's rate
+        self._rate_calls = 0
         self._nominal_dt = 0.0
         self._n = 1  # samples per chunk
         self._t0_ns: int | None = None
@@ -684,20 +687,23 @@ class CalibrationEstimator:
         axes = self.fixture.angular_axes_enu(self._with_offsets(q_e))  # (B, n, 3)
         w_enu = np.einsum('bjk,bj->bk', axes, qd_e) + self.fixture.site.omega_ie_enu
         w_enc = np.einsum('bji,bj->bi', R_enu_imu, w_enu)  # R^T w_enu
-        a = self._rate_weight()
+        self._rate_calls += 1
+        if self._rate_calls % RATE_WEIGHT_EVERY == 1 or self._rate_a is None:
+            self._rate_a = self._rate_weight()  # the encoders' noise changes slowly
+        a = self._rate_a or 0.0
         return np.where(covered[:, None], a * w_enc + (1.0 - a) * w_gyro, w_gyro)
 
-    def _rate_weight(self) -> float:
+    def _rate_weight(self) -> float | None:
         """The encoders' weight in :meth:`_encoder_rate_imu`, ``s_g^2 / (s_g^2 + s_e^2)``
         per IMU axis: ``s_g^2 = N^2 / (2 dt)``, the gyros' two-sample mean (white-noise
         density ``N``); ``s_e^2 = sum_j (1.57 s_j / dt_j)^2 / 3``, the spline's rate through
         each joint's encoder noise ``s_j`` (from the median second difference of its latest
         samples: motion and quantization included, a move's own acceleration negligible at
-        the joint rate) over the joints' median sample spacing ``dt_j``. 0 (the gyros alone)
-        without enough joint samples."""
+        the joint rate) over the joints' median sample spacing ``dt_j``. None (the gyros alone,
+        and asked again at the next block) without enough joint samples."""
         jb = self._joints
         if len(jb) < ENCODER_NOISE_MIN or self._nominal_dt <= 0:
-            return 0.0
+            return None
         jt = np.array(jb.t_ns[-ENCODER_NOISE_SAMPLES:], np.int64)
         jq = np.array(jb.q_rad[-ENCODER_NOISE_SAMPLES:], float)
         dt_j = float(np.median(np.diff(jt))) * 1e-9
