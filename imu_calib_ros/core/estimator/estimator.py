@@ -85,6 +85,16 @@ MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS 
 # noise and read as bias walk by the NIS adaptation). The filter waits for joint states this
 # far beyond a chunk end (live and offline alike).
 CHAIN_STILL_HALF_WINDOW_S = 0.25
+#: the latest joint samples whose second differences give the encoders' noise (and the
+#: fewest that do), :meth:`CalibrationEstimator._rate_weight`
+ENCODER_NOISE_SAMPLES = 4000
+ENCODER_NOISE_MIN = 50
+#: rms derivative of a cubic spline through unit white noise at unit spacing, at instants
+#: spread over the intervals (1.17 at the knots; numerical, scipy's not-a-knot spline)
+SPLINE_RATE_NOISE = 1.57
+#: median |q[k+1] - 2 q[k] + q[k-1]| of unit white noise: 0.6745 sqrt(6)
+MEDIAN_SECOND_DIFFERENCE = 1.652
+RATE_WEIGHT_EVERY = 20  # blocks between two estimates of the encoders' weight
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
 BRIDGE_JOINTS_AHEAD = 9
 
@@ -163,6 +173,8 @@ class CalibrationEstimator:
         self._joints = JointBuffer(self.counters)
         self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
         self._half_span = 1  # samples each side of an omega_dot difference (propagation)
+        self._rate_a: float | None = None  # the encoders' weight in the lever arm's rate
+        self._rate_calls = 0
         self._nominal_dt = 0.0
         self._n = 1  # samples per chunk
         self._t0_ns: int | None = None
@@ -579,8 +591,11 @@ class CalibrationEstimator:
         self.counters['gaps'] += blk.n_gaps
         # zero velocity with the lever arm, and the encoder attitude, at each chunk end
         chain = None if self.fixture.concurrent else self._chain_motion(t[blk.ends])
+        w_end = blk.omega_ib_end_rad_s
+        if chain is None and self.attitude_aiding and len(self._joints):
+            w_end = self._encoder_rate_imu(t[blk.ends], blk.R_enu_imu_end, w_end)
         z_v, H_v = to_filter_units(*zero_velocity(
-            blk.v_enu_end_m_s, blk.R_enu_imu_end, blk.omega_ib_end_rad_s, om, self._rho, lay,
+            blk.v_enu_end_m_s, blk.R_enu_imu_end, w_end, om, self._rho, lay,
             None if chain is None else chain[3], None if chain is None else chain[6]),
             lay.scale)
         R_v = noise_covariance(cfg.velocity_sigma_m_s)
@@ -650,6 +665,56 @@ class CalibrationEstimator:
         sd = np.sqrt(np.clip(np.diag(filt.P)[6:], 0.0, None)) * lay.scale[6:]
         self.history.record(self._t_last_ns, lay.state_labels, self._state_values(), sd,
                             filt.counters, force)
+
+    def _encoder_rate_imu(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray,
+                          w_gyro: FloatArray) -> FloatArray:
+        """The inertial rate at the chunk ends for the lever arm's velocity on a turntable:
+        the gyros' and the encoders' (earth rate + ``sum_j u_j qd_j`` in ENU, into the IMU
+        frame by the navigated attitude), weighted by their noise (:meth:`_rate_weight`).
+
+        The gyros' rate there is the mean of the two samples either side of the instant; the
+        same two samples' noise is the boundary term of the size effect's ``omega_dot``
+        regressor over the chunk. Times the lever arm, that shared noise biased the size
+        effect: with a MEMS gyro (1.8e-3 rad/s for the two samples at 100 Hz) and a 34 mm lever
+        arm, by ~2 mm (2 sigma; 36 sigma with 10x less accelerometer noise, as the bias stays).
+        The encoders' rate shares no noise with the IMU, but a spline's derivative through
+        20 urad of encoder noise has ~2e-3 rad/s: more than a tactical gyro's (the encoders'
+        alone left a tactical unit's size effect 4.6 sigma off)."""
+        covered, q_e, qd_e = self._joints.motion_at(
+            t_ns, self.config.stationary_joint_tolerance_rad, CHAIN_STILL_HALF_WINDOW_S)
+        if q_e is None or qd_e is None:
+            return w_gyro
+        axes = self.fixture.angular_axes_enu(self._with_offsets(q_e))  # (B, n, 3)
+        w_enu = np.einsum('bjk,bj->bk', axes, qd_e) + self.fixture.site.omega_ie_enu
+        w_enc = np.einsum('bji,bj->bi', R_enu_imu, w_enu)  # R^T w_enu
+        self._rate_calls += 1
+        if self._rate_calls % RATE_WEIGHT_EVERY == 1 or self._rate_a is None:
+            self._rate_a = self._rate_weight()  # the encoders' noise changes slowly
+        a = self._rate_a or 0.0
+        return np.where(covered[:, None], a * w_enc + (1.0 - a) * w_gyro, w_gyro)
+
+    def _rate_weight(self) -> float | None:
+        """The encoders' weight in :meth:`_encoder_rate_imu`, ``s_g^2 / (s_g^2 + s_e^2)``
+        per IMU axis: ``s_g^2 = N^2 / (2 dt)``, the gyros' two-sample mean (white-noise
+        density ``N``); ``s_e^2 = sum_j (1.57 s_j / dt_j)^2 / 3``, the spline's rate through
+        each joint's encoder noise ``s_j`` (from the median second difference of its latest
+        samples: motion and quantization included, a move's own acceleration negligible at
+        the joint rate) over the joints' median sample spacing ``dt_j``. None (the gyros alone,
+        and asked again at the next block) without enough joint samples."""
+        jb = self._joints
+        if len(jb) < ENCODER_NOISE_MIN or self._nominal_dt <= 0:
+            return None
+        jt = np.array(jb.t_ns[-ENCODER_NOISE_SAMPLES:], np.int64)
+        jq = np.array(jb.q_rad[-ENCODER_NOISE_SAMPLES:], float)
+        dt_j = float(np.median(np.diff(jt))) * 1e-9
+        d2 = jq[2:] - 2.0 * jq[1:-1] + jq[:-2]
+        d2 = np.where(np.abs(d2) > np.pi, 0.0, d2)  # wrapped at +-pi
+        s_j = np.median(np.abs(d2), axis=0) / MEDIAN_SECOND_DIFFERENCE
+        s_e2 = float(np.sum((SPLINE_RATE_NOISE * s_j / max(dt_j, 1e-6)) ** 2)) / 3.0
+        s_g2 = self._process_noise.white[0] ** 2 / (2.0 * self._nominal_dt)
+        if s_g2 <= 0.0:
+            return 0.0
+        return s_g2 / (s_g2 + s_e2)
 
     def _chain_motion(self, t_ns: NDArray[np.int64]) -> tuple[
             NDArray[np.bool_], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
