@@ -12,13 +12,15 @@ the start the nominal mounting, joint stamps taken as they come).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import yaml
 
 from imu_calib_ros.cli import main
-from imu_calib_ros.testing.world_cases import compare_calibration, make_case
+from imu_calib_ros.testing.world_cases import (CaseTruth, Comparison, compare_calibration,
+                                               make_case)
 
 # (id, make_case arguments, what the case is for)
 CASES = [
@@ -90,15 +92,21 @@ def _replay(bag: Path, fixture: Path, out: Path, capsys, *extra: str) -> str:
     return err
 
 
+def _calibrate(bag: Path, truth: CaseTruth, tmp_path: Path, capsys: Any,
+               *extra: str) -> tuple[dict[str, Any], Comparison]:
+    """The plain command on ``bag`` -> (the calibration file, its worst parameter)."""
+    out = tmp_path / 'calib.yaml'
+    _replay(bag, truth.fixture_path, out, capsys, *extra)
+    calib = yaml.safe_load(out.read_text())
+    rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
+    return calib, max(rows, key=lambda r: abs(r.z))
+
+
 @pytest.mark.parametrize('name,kw,why', CASES, ids=[c[0] for c in CASES])
 def test_plain_command_is_honest_on_a_world_unit(name: str, kw: dict, why: str,
                                                  tmp_path: Path, capsys) -> None:
     bag, truth = make_case(tmp_path, **kw)
-    out = tmp_path / 'calib.yaml'
-    _replay(bag, truth.fixture_path, out, capsys)
-    calib = yaml.safe_load(out.read_text())
-    rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
-    worst = max(rows, key=lambda r: abs(r.z))
+    calib, worst = _calibrate(bag, truth, tmp_path, capsys)
     assert abs(worst.z) < 4.0, (why, worst)
     est = calib['imu_calibration']['estimator']
     cs = est['coarse_start']
@@ -141,11 +149,7 @@ def test_point_samples_declared_with_dropped_samples(tmp_path: Path, capsys) -> 
                            sample_type='point', drop_fraction_imu=0.02, seed=3)
     cfg = tmp_path / 'point.yaml'
     cfg.write_text('imu_sample_type: point\n')
-    out = tmp_path / 'calib.yaml'
-    _replay(bag, truth.fixture_path, out, capsys, '--config', str(cfg))
-    calib = yaml.safe_load(out.read_text())
-    rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
-    worst = max(rows, key=lambda r: abs(r.z))
+    calib, worst = _calibrate(bag, truth, tmp_path, capsys, '--config', str(cfg))
     assert abs(worst.z) < 4.0, worst
     # declared point samples: no half-period latency to take up
     assert abs(calib['imu_calibration']['estimator']['coarse_start']['joint_latency_s']) < 2e-4
@@ -160,11 +164,7 @@ def test_dropped_messages_during_turns_are_bridged(tmp_path: Path, capsys) -> No
     bag, truth = make_case(tmp_path, unit='tactical', size=1.0, mount_deg=3.0,
                            imu_rate_hz=200.0, drop_fraction_imu=0.02,
                            drop_fraction_joint=0.05, seed=11)
-    out = tmp_path / 'calib.yaml'
-    _replay(bag, truth.fixture_path, out, capsys)
-    calib = yaml.safe_load(out.read_text())
-    rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
-    worst = max(rows, key=lambda r: abs(r.z))
+    calib, worst = _calibrate(bag, truth, tmp_path, capsys)
     assert abs(worst.z) < 4.0, worst
     health = calib['imu_calibration']['estimator']['health']
     assert health['gaps_bridged_in_motion'] > 20, health
@@ -191,11 +191,7 @@ def test_a_drift_the_first_pass_did_not_assume_is_assumed_from_the_start(
     more than ``WALK_GROWTH``, so another pass assumes it from the coarse start."""
     bag, truth = make_case(tmp_path, unit='consumer_mems', size=1.0, mount_deg=3.0,
                            plan='savage_srt', unit_noise=DRIFTING, seed=seed)
-    out = tmp_path / 'calib.yaml'
-    _replay(bag, truth.fixture_path, out, capsys)
-    calib = yaml.safe_load(out.read_text())
-    rows = [r for r in compare_calibration(calib, truth.data) if not r.fixed]
-    worst = max(rows, key=lambda r: abs(r.z))
+    calib, worst = _calibrate(bag, truth, tmp_path, capsys)
     assert abs(worst.z) < 4.0, worst
     passes = calib['imu_calibration']['estimator']['passes']
     assert any('bias walk grew' in why for why in passes['extra_because']), passes
