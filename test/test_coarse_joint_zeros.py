@@ -14,7 +14,8 @@ from imu_calib_ros.core.fixture import Fixture
 DT, N, NOISE_A = 0.01, 1000, 1e-3  # 10 s windows at 100 Hz, 100 ug/sqrt(Hz)
 
 
-def windows(zero: np.ndarray, rng: np.random.Generator) -> list[StaticWindow]:
+def windows(zero: np.ndarray, rng: np.random.Generator
+            ) -> tuple[list[StaticWindow], Fixture]:
     fx = Fixture.from_yaml(resolve_config_file('three_axis', 'fixtures'))
     # raw accelerometer errors: scale/misalignment 1 %, bias 10 mg
     A = np.eye(3) + rng.normal(0.0, 0.01, (3, 3))

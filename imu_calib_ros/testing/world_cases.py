@@ -159,6 +159,8 @@ def make_case(tmp_path: str | os.PathLike[str], unit: str = 'nav', size: float =
     fx_path = _fixture_path(fixture).resolve()
     name = (f'{unit}-s{size:g}-m{mount_deg:g}-o{offset_mm:g}-l{latency_ms:g}-{sample_type}'
             f'-j{joint_rate_hz:g}-i{imu_rate_hz:g}-{Path(str(plan)).stem}-{fx_path.stem}-{seed}')
+    if unit_noise:
+        name += '-' + hashlib.sha256(repr(sorted(unit_noise.items())).encode()).hexdigest()[:8]
     out = Path(tmp_path) / name
     rng_unit, rng_mount, rng_plan = (np.random.default_rng(s) for s in
                                      np.random.SeedSequence([seed, 1]).spawn(3))
@@ -171,8 +173,6 @@ def make_case(tmp_path: str | os.PathLike[str], unit: str = 'nav', size: float =
     u = draw_unit(unit, size, rng_unit)
     if unit_noise:
         u = dataclasses.replace(u, noise=dataclasses.replace(u.noise, **unit_noise))
-        name += '-' + hashlib.sha256(repr(sorted(unit_noise.items())).encode()).hexdigest()[:8]
-        out = Path(tmp_path) / name
 
     def direction() -> np.ndarray:
         v = rng_mount.normal(size=3)

@@ -30,6 +30,7 @@ the pieces (CubicSpline, polar, lstsq, allantools) are scipy's/allantools'.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -707,11 +708,14 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     checks name what is wrong."""
     args = (t_imu_ns, w, f, t_joint_ns, q_joint, fixture, min_static_s, tol_rad, max_samples,
             only_determined, point_samples)
+    applied: list[bool] = []  # set by _coarse_start when it applied fitted zeros
     try:
-        return _coarse_start(*args, joint_zeros=True)
+        return _coarse_start(*args, joint_zeros=True, zeros_applied=applied)
     except NoRotation:
         raise
     except (ValueError, np.linalg.LinAlgError):
+        if not applied:  # the same start without zeros: the same error
+            raise
         return _coarse_start(*args, joint_zeros=False)
 
 
@@ -719,7 +723,8 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                   t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                   min_static_s: float = 1.0, tol_rad: float = 1e-4,
                   max_samples: int = 60_000, only_determined: bool = False,
-                  point_samples: bool = False, joint_zeros: bool = True) -> CoarseStart | None:
+                  point_samples: bool = False, joint_zeros: bool = True,
+                  zeros_applied: list[bool] | None = None) -> CoarseStart | None:
     """The start point from interval-mean IMU samples and (unwrapped) joint states.
 
     ``only_determined``: None, before the gyro fits, when the accelerometer fit already shows
@@ -759,9 +764,13 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         notes.append('no stationary window: noise from the first samples (motion included)')
     # --- a table's encoder zeros, from the windows' gravity: the joints from here on are at
     # q + zero (the fits below, and the filter's joint record)
-    zero, zero_sig = (fit_joint_zeros(fixture, wins, noise_a, dt) if joint_zeros
-                      else (np.zeros(fixture.n_joints), np.full(fixture.n_joints, np.inf)))
+    zero, zero_sig = np.zeros(fixture.n_joints), np.full(fixture.n_joints, np.inf)
+    if joint_zeros:
+        with contextlib.suppress(ValueError, np.linalg.LinAlgError):  # then none, as without
+            zero, zero_sig = fit_joint_zeros(fixture, wins, noise_a, dt)
     if np.any(zero):
+        if zeros_applied is not None:
+            zeros_applied.append(True)
         qj = qj + zero
         spline = CubicSpline(tj, qj, axis=0)
         wins = [dataclasses.replace(win, q_rad=win.q_rad + zero) for win in wins]

@@ -680,6 +680,12 @@ class CalibrationEstimator:
         The encoders' rate shares no noise with the IMU, but a spline's derivative through
         20 urad of encoder noise has ~2e-3 rad/s: more than a tactical gyro's (the encoders'
         alone left a tactical unit's size effect 4.6 sigma off)."""
+        self._rate_calls += 1
+        if self._rate_calls % RATE_WEIGHT_EVERY == 1 or self._rate_a is None:
+            self._rate_a = self._rate_weight()  # the encoders' noise changes slowly
+        a = self._rate_a
+        if not a:  # the gyros alone: no encoder rates to evaluate
+            return w_gyro
         covered, q_e, qd_e = self._joints.motion_at(
             t_ns, self.config.stationary_joint_tolerance_rad, CHAIN_STILL_HALF_WINDOW_S)
         if q_e is None or qd_e is None:
@@ -687,10 +693,6 @@ class CalibrationEstimator:
         axes = self.fixture.angular_axes_enu(self._with_offsets(q_e))  # (B, n, 3)
         w_enu = np.einsum('bjk,bj->bk', axes, qd_e) + self.fixture.site.omega_ie_enu
         w_enc = np.einsum('bji,bj->bi', R_enu_imu, w_enu)  # R^T w_enu
-        self._rate_calls += 1
-        if self._rate_calls % RATE_WEIGHT_EVERY == 1 or self._rate_a is None:
-            self._rate_a = self._rate_weight()  # the encoders' noise changes slowly
-        a = self._rate_a or 0.0
         return np.where(covered[:, None], a * w_enc + (1.0 - a) * w_gyro, w_gyro)
 
     def _rate_weight(self) -> float | None:

@@ -125,19 +125,16 @@ def walk_grown(est: CalibrationEstimator) -> tuple[str, Any]:
     st = est.start
     if st is None or max(r_g, r_a) <= WALK_GROWTH:
         return '', None
-    parts = [f'{what} bias walk grew {r:.3g}x to {math.sqrt(q):.3g} {unit}'
-             for what, q, r, unit in (('gyro', q_g, r_g, 'rad/s/sqrt(s)'),
-                                      ('accelerometer', q_a, r_a, 'm/s^2/sqrt(s)'))
-             if r > WALK_GROWTH]
-    # only the group that grew: the other keeps what the pass started with
-    grown = st
-    if r_g > WALK_GROWTH:
-        grown = dataclasses.replace(grown, gyro_bias_random_walk_rad_s2_rt_hz=max(
-            st.gyro_bias_random_walk_rad_s2_rt_hz, math.sqrt(q_g)))
-    if r_a > WALK_GROWTH:
-        grown = dataclasses.replace(grown, accel_bias_random_walk_m_s3_rt_hz=max(
-            st.accel_bias_random_walk_m_s3_rt_hz, math.sqrt(q_a)))
-    return '; '.join(parts) + ': the next pass assumes it from its start', grown
+    parts: list[str] = []
+    grown: dict[str, Any] = {}  # only the group that grew: the other keeps the pass's start
+    for what, q, r, unit, name in (
+            ('gyro', q_g, r_g, 'rad/s/sqrt(s)', 'gyro_bias_random_walk_rad_s2_rt_hz'),
+            ('accelerometer', q_a, r_a, 'm/s^2/sqrt(s)', 'accel_bias_random_walk_m_s3_rt_hz')):
+        if r > WALK_GROWTH:
+            parts.append(f'{what} bias walk grew {r:.3g}x to {math.sqrt(q):.3g} {unit}')
+            grown[name] = max(getattr(st, name), math.sqrt(q))
+    return ('; '.join(parts) + ': the next pass assumes it from its start',
+            dataclasses.replace(st, **grown))
 
 
 @dataclass(frozen=True)
