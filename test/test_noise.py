@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from imu_calib_ros.core.allan import AllanAccumulator, allan_curve
+from imu_calib_ros.core.allan import AllanAccumulator, allan_curve, overlapping_avar
 from imu_calib_ros.core.calibration import CalibrationResult
 from imu_calib_ros.core.noise_characterisation import characterise
 from imu_calib_ros.core.noise_fit import fit_axis
@@ -232,3 +232,22 @@ def test_cli_noise_missing_topic(tmp_path, capsys) -> None:
     assert main(['noise', str(bag), '--imu-topic', 'imu/other', '--quiet']) == 2
     err = capsys.readouterr().err
     assert 'has no topic /imu/other' in err and err.count('\n') == 1
+
+
+@pytest.mark.parametrize('n', [9, 1000, 30_001])
+def test_overlapping_avar_equals_allantools(n: int) -> None:
+    """The estimator's start (white noise of every stationary window) uses the whole-record
+    estimator at chosen m, all axes at once: the same numbers as ``allantools.oadev``,
+    including the offset of an accelerometer's 9.8 m/s^2 and every m up to (n - 1) / 2."""
+    rng = np.random.default_rng(n)
+    y = np.column_stack([rng.normal(size=n) * 1e-4, 9.8 + rng.normal(size=n) * 1e-3,
+                         np.cumsum(rng.normal(size=n)) * 1e-5])
+    ms = [m for m in (1, 2, 3, 4, 8, 16, 64, 512, 4096) if 2 * m < n]
+    got = overlapping_avar(y, ms)
+    for ax in range(3):
+        taus, dev, _, ns = allantools.oadev(y[:, ax], rate=1.0 / TAU0, data_type='freq',
+                                            taus=np.array(ms, float) * TAU0)
+        assert np.allclose(taus, np.array(ms) * TAU0)
+        assert np.allclose(np.sqrt(got[:, ax]), dev, rtol=1e-9, atol=0.0)
+    assert np.all(np.isnan(overlapping_avar(y, [n // 2 + 1])))  # no second difference
+    assert np.all(overlapping_avar(np.full((50, 2), 9.81), [1, 4]) == 0.0)  # exactly

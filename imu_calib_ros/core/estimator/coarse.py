@@ -7,8 +7,8 @@ it) and returns a start point with honest sigmas:
 
 1. stationary windows from the joint states (every joint still for ``min_static_s``);
 2. white-noise densities of gyros and accelerometers in those windows (Allan deviation at the
-   sample period, ``allantools``), and the bias random-walk level from how the window
-   residuals wander with the time between windows (item 5);
+   short taus, :func:`..allan.overlapping_avar`), and the bias random-walk level from how
+   the window residuals wander with the time between windows (item 5);
 3. the IMU-to-encoder time offset: the gyro rate magnitude against the encoder rate magnitude
    (both invariant to the unknown mounting and nearly to the scale errors), least squares
    over a grid of shifts refined by a parabola (METHODS.md: cross-correlation), then
@@ -26,7 +26,8 @@ it) and returns a start point with honest sigmas:
    ``A = (I + Ka) R_m^T`` (the quadratic term left to the filter).
 
 Hand-written because no library fits gyro and accelerometer errors to encoder kinematics;
-the pieces (CubicSpline, polar, lstsq, allantools) are scipy's/allantools'.
+the pieces (CubicSpline, polar, lstsq) are scipy's; the Allan variance is allantools' estimator
+(:mod:`..allan`, held to ``allantools.oadev`` by a test).
 """
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ from scipy.interpolate import CubicSpline
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
+from ..allan import overlapping_avar
 from ..rotation import skew
 from . import error_model as em
 from .quantiles import t_isf
@@ -225,13 +227,13 @@ def still_spans(t_ns: NDArray[np.int64], q: FloatArray, min_static_s: float, tol
 def white_noise_density(x: FloatArray, dt_s: float, point: bool = False) -> float:
     """White-noise density [unit/sqrt(Hz)] of a stationary record (N, 3); the rms over the axes.
 
-    Overlapping Allan variance (``allantools.oadev``) at the short taus ``dt .. 512 dt`` (at most
-    an eighth of the record), fitted by non-negative least squares, weighted by the variance of
-    each point, as ``N^2 / tau + 3 Q^2 / tau^2``: white noise plus the quantisation of an
-    integrating output (IEEE Std 952-1997 annex C). At ``tau = dt`` alone a navigation gyro's
-    increment quantisation read as white noise: at 2 kHz three times the unit's angle random
-    walk, and every sigma of the run 1.2-1.5x the true noise model's. The longer terms (bias
-    instability, rate random walk) are negligible this close to the sample period.
+    Overlapping Allan variance (:func:`..allan.overlapping_avar`) at the short taus ``dt .. 512
+    dt`` (at most an eighth of the record), fitted by non-negative least squares, weighted by the
+    variance of each point, as ``N^2 / tau + 3 Q^2 / tau^2``: white noise plus the quantisation of
+    an integrating output (IEEE Std 952-1997 annex C). At ``tau = dt`` alone a navigation gyro's
+    increment quantisation read as white noise: at 2 kHz three times the unit's angle random walk,
+    and every sigma of the run 1.2-1.5x the true noise model's. The longer terms (bias instability,
+    rate random walk) are negligible this close to the sample period.
 
     ``point``: ``x`` are point samples turned into interval means by the trapezoid
     (``buffers.point_to_mean``), whose neighbours share a point: their Allan variance at
@@ -239,7 +241,6 @@ def white_noise_density(x: FloatArray, dt_s: float, point: bool = False) -> floa
     read as white noise, declared point samples came out at 55 % of their density and the run
     failed its self-check, NIS 1.7 per dof).
     """
-    import allantools
     from scipy.optimize import nnls
     n = x.shape[0]
     m = np.array([k for k in (1, 2, 4, 8, 16, 32, 64, 128, 256, 512) if 8 * k <= n] or [1],
@@ -247,20 +248,21 @@ def white_noise_density(x: FloatArray, dt_s: float, point: bool = False) -> floa
     taus = m * dt_s
     A = np.column_stack([1.0 / taus - (0.75 * dt_s / taus ** 2 if point else 0.0),
                          3.0 / taus ** 2])
+    avar_all = overlapping_avar(x, m.astype(np.int64))
     out = []
     for a in range(x.shape[1]):
-        t_used, adev, _, _ = allantools.oadev(x[:, a], rate=1.0 / dt_s, data_type='freq',
-                                              taus=taus)
-        avar = np.asarray(adev, float) ** 2
-        k = np.searchsorted(taus, np.asarray(t_used, float) - 1e-12 * dt_s)
-        if len(avar) < 2 or not np.all(np.isfinite(avar)) or np.any(avar <= 0.0):
+        avar = avar_all[:, a]
+        k = np.flatnonzero(np.isfinite(avar))
+        avar = avar[k]
+        if len(avar) < 2 or np.any(avar <= 0.0):
             # too short to fit, or a noise-free (synthetic, constant) record: the first point
-            out.append(float(adev[0]) * math.sqrt(dt_s))
+            out.append(math.sqrt(max(float(avar_all[0, a]), 0.0) * dt_s)
+                       if np.isfinite(avar_all[0, a]) else math.nan)
             continue
         # a point's relative spread ~ sqrt(m / n): weight each by avar / that
         wgt = 1.0 / (avar * np.sqrt(m[k] / n))
         coef, _ = nnls(A[k] * wgt[:, None], avar * wgt)
-        out.append(math.sqrt(coef[0]) if coef[0] > 0 else float(adev[0]) * math.sqrt(dt_s))
+        out.append(math.sqrt(coef[0]) if coef[0] > 0 else math.sqrt(float(avar[0]) * dt_s))
     return float(np.sqrt(np.mean(np.square(out))))
 
 

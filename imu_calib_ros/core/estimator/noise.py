@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from ..allan import overlapping_avar
 from .coarse import CoarseStart
 from .ekf import process_noise
 from .error_model import StateLayout
@@ -71,15 +72,11 @@ def white_noise_from_window(w: FloatArray, f: FloatArray, dt_s: float,
     where white noise dominates: ``N = sigma_A(tau) sqrt(tau)``, IEEE Std 952-1997 annex C).
     ``point``: trapezoid means of point samples, whose Allan variance at ``2 dt`` is 5/8 of
     white noise's (:func:`.coarse.white_noise_density`)."""
-    import allantools
-    rate = 1.0 / dt_s
     out = []
     for x in (w, f):
-        dens = []
-        for a in range(3):
-            taus, adev, _, _ = allantools.oadev(x[:, a], rate=rate, data_type='freq',
-                                                taus=np.array([dt_s * 2]))
-            dens.append(adev[0] * math.sqrt(taus[0]) / (math.sqrt(0.625) if point else 1.0))
+        dens = np.sqrt(overlapping_avar(x, [2])[0] * 2.0 * dt_s)
+        if point:
+            dens = dens / math.sqrt(0.625)
         out.append(float(np.sqrt(np.mean(np.square(dens)))))
     return out[0], out[1]
 
