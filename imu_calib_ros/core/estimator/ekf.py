@@ -260,7 +260,7 @@ class ErrorStateFilter:
         else:
             c.accepted[kind] = c.accepted.get(kind, 0) + 1
             c.nis_sum[kind] = c.nis_sum.get(kind, 0.0) + nis
-            e = y / np.sqrt(np.diag(S))
+            e = y / np.sqrt(S.diagonal())
             if kind in c.innov_sum:
                 c.innov_sum[kind] += e
                 c.innov_sq[kind] += e * e

@@ -123,9 +123,12 @@ class RunLedger:
             grown = np.zeros((max(top, 2 * len(self._bins)), 7))
             grown[:len(self._bins)] = self._bins
             self._bins = grown
+        # one bincount over the bins this batch touches (bin, column flattened)
+        lo = int(k.min())
         vals = np.column_stack([np.ones(len(k)), w, f])
-        for c in range(7):
-            self._bins[:top, c] += np.bincount(k, vals[:, c], minlength=top)
+        idx = ((k - lo)[:, None] * 7 + np.arange(7)).ravel()
+        self._bins[lo:top] += np.bincount(idx, vals.ravel(), minlength=(top - lo) * 7
+                                          ).reshape(top - lo, 7)
         self._check_walk()
 
     def joints(self, batch: JointBatch | JointSample) -> None:
