@@ -6,9 +6,12 @@ in the difference) and fits how their differences grow. Synthetic windows (two p
 still, 10 s moves, 100 Hz, 40 min) with a known accelerometer bias process: a random walk is
 recovered within the spread of its estimate; a ~100 s Gauss-Markov instability (MEMS), whose
 differences saturate, still shows as a walk; white noise alone shows none (the estimate is
-t > 3 tested, so a false detection has probability ~1e-3 per group).
+t > 3 tested, so a false detection has probability ~1e-3 per group). And what the calibration
+file and the command say about the walk the sigmas assumed, and where it came from.
 """
 from __future__ import annotations
+
+import math
 
 from dataclasses import dataclass
 from typing import Any
@@ -16,9 +19,14 @@ from typing import Any
 import numpy as np
 import pytest
 
+from imu_calib_ros.core.estimator.coarse import CoarseStart
 from imu_calib_ros.core.estimator.config import EstimatorConfig
+from imu_calib_ros.core.estimator.noise import (MEMS_BIAS_WALK, MEMS_INSTABILITY_CORRELATION_S,
+                                                bias_random_walk, bias_walk_sources,
+                                                instability_covered)
 from imu_calib_ros.core.estimator.run_ledger import RunLedger
 from imu_calib_ros.core.fixture import load_fixture
+from imu_calib_ros.core.imu_grade import load_grade
 from imu_calib_ros.core.types import ImuBatch, JointBatch
 
 RATE_HZ = 100.0
@@ -128,3 +136,53 @@ def test_white_noise_rarely_raises_the_walk_of_a_running_estimator() -> None:
         _feed(led, np.zeros(int(1800 * RATE_HZ)), seed)
         raised += led.est.raised is not None
     assert raised <= 3, raised
+
+def _start(n_g: float, n_a: float, walk_g: float = 0.0, walk_a: float = 0.0) -> CoarseStart:
+    z = np.zeros(3)
+    return CoarseStart(z, z, z, z, z, 0.0, 0.0, 0.0, n_g, n_a, walk_g, walk_a, 8, 600.0)
+
+
+def test_the_file_says_where_the_bias_walk_came_from() -> None:
+    """The walk the sigmas assume, and its source: a grade's Gauss-Markov instability
+    (2 sigma^2 / tau), the data's walk where larger, else a unit without a grade gets the
+    floors; a navigation gyro (noise below the aiding threshold) none. The instability a
+    walk covers inverts the grade's: a MEMS grade's 10 deg/h over 100 s is covered by exactly
+    its own walk."""
+    mems_threshold = EstimatorConfig().aiding_gyro_noise_rad_s_rt_hz
+    mems = _start(1.2e-4, 1.2e-3)
+    q_g, q_a = bias_random_walk(None, mems, mems_threshold)
+    assert bias_walk_sources(None, mems, mems_threshold) == ('MEMS floor', 'MEMS floor')
+    assert math.sqrt(q_g) == pytest.approx(MEMS_BIAS_WALK[0] * 1.2e-4, rel=1e-12)
+    assert math.sqrt(q_a) == pytest.approx(MEMS_BIAS_WALK[1] * 1.2e-3, rel=1e-12)
+    # the data's walk above the floor wins; below it, the floor stays
+    big = _start(1.2e-4, 1.2e-3, 10 * MEMS_BIAS_WALK[0] * 1.2e-4, 0.1 * MEMS_BIAS_WALK[1] * 1.2e-3)
+    assert bias_walk_sources(None, big, mems_threshold) == ('coarse start', 'MEMS floor')
+    # a navigation gyro without a grade: no gyro walk assumed, the accelerometer floor
+    nav = _start(1e-7, 2e-5)
+    assert bias_walk_sources(None, nav, mems_threshold) == ('none', 'accelerometer floor')
+    # with a grade: the grade's walk; a 10 deg/h instability over 100 s is what it covers
+    grade = load_grade('mems_mti1')
+    assert bias_walk_sources(grade, mems, mems_threshold)[0] == 'grade'
+    q_grade = bias_random_walk(grade, mems, mems_threshold)[0]
+    assert grade.gyro_bias_correlation_s == MEMS_INSTABILITY_CORRELATION_S
+    assert instability_covered(q_grade - grade.gyro_bias_random_walk_rad_s2_rt_hz ** 2) == \
+        pytest.approx(grade.gyro_bias_instability_rad_s, rel=1e-12)
+
+
+def test_the_command_names_the_instability_an_assumed_mems_walk_covers() -> None:
+    """The note a MEMS unit without a grade gets when no drift showed: 0.022 N per sqrt(s) at
+    N = 1.2e-4 rad/s/sqrt(Hz) is 2.64e-6 rad/s/sqrt(s) = 32.7 deg/h/sqrt(h), and covers a
+    Gauss-Markov instability of 2.64e-6 sqrt(50) = 1.87e-5 rad/s = 3.85 deg/h over 100 s."""
+    from types import SimpleNamespace
+
+    from imu_calib_ros.cli.replay import _walk_note
+    q = MEMS_BIAS_WALK[0] * 1.2e-4
+    walk = {'gyro_bias_random_walk_rad_s2_rt_hz': q, 'gyro_source': 'MEMS floor',
+            'gyro_instability_covered_rad_s': instability_covered(q * q)}
+    note = _walk_note(SimpleNamespace(extra={'estimator': {'bias_walk': walk}}))
+    assert note is not None and '(33 deg/h/sqrt(h))' in note and 'up to 3.9 deg/h' in note
+    for source in ('grade', 'coarse start', "raised by the run's data"):
+        calib = SimpleNamespace(extra={'estimator': {'bias_walk': {**walk,
+                                                                   'gyro_source': source}}})
+        assert _walk_note(calib) is None
+    assert _walk_note(SimpleNamespace(extra={})) is None  # a file from another method

@@ -64,8 +64,9 @@ from .chain_consider import ChainConsider
 from .measurements import (MEAS_SCALE, MEASUREMENT_DOF, chain_attitude_covariance,
                            chain_velocity_covariance, encoder_attitude, link_error_chains,
                            noise_covariance, to_filter_units, zero_velocity)
-from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, check_grade_hint,
-                    white_noise_densities, white_noise_from_window)
+from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, bias_walk_sources,
+                    check_grade_hint, instability_covered, white_noise_densities,
+                    white_noise_from_window)
 from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_correction, prior_point,
                      prior_shift, prior_sigmas, prior_vector)
 from .propagation import Block, omega_dot_half_span, propagate_block
@@ -164,6 +165,7 @@ class CalibrationEstimator:
             'bias_noise_adaptations': 0, 'bias_walk_raised': 0}
         self._configure()
         self._process_noise = ProcessNoise(cfg.noise_scale)
+        self._walk_sources: tuple[str, str] | None = None  # of the first filter's walk
         self._reset_filter_side()
         self.frame_id = ''  # header.frame_id of the first accepted IMU data
         self._running = False
@@ -340,6 +342,7 @@ class CalibrationEstimator:
             lambda sd: {'estimator': {**estimator_extra(st, sd, self.layout, self.health(),
                                                         self.attitude_aiding, self.start),
                                       'covariance_scale': float(scale),
+                                      'bias_walk': self.bias_walk_summary(),
                                       **self._offset_names(),
                                       'settings_changed': self._settings_changed(),
                                       # CONTRACT 4 order, 4 digits (the report's envelope)
@@ -939,6 +942,25 @@ class CalibrationEstimator:
         return (k * pn.white[0], k * pn.white[1], pn.scale * pn.bias_q[0],
                 pn.scale * pn.bias_q[1])
 
+    def bias_walk_summary(self) -> dict[str, Any]:
+        """The biases' random walk the reported covariance assumed and where it came from
+        (``estimator.bias_walk`` of the calibration file): per group the density (square
+        root of the PSD), its source (:func:`.noise.bias_walk_sources` of the first filter,
+        or ``raised by the run's data`` where the stationary windows or the innovations made
+        it larger since), and for the gyros the Gauss-Markov instability over 100 s that it
+        covers (:func:`.noise.instability_covered`): a unit less stable than that, with no
+        grade to say so and no plan that shows it, gets optimistic gyro-bias sigmas."""
+        _, _, q_g, q_a = self.assumed_noise()
+        q0 = self._process_noise.initial or (0.0, 0.0)
+        src = list(self._walk_sources or ('none', 'none'))
+        for i, q in enumerate((q_g, q_a)):
+            if q > q0[i] * (1.0 + 1e-9):
+                src[i] = "raised by the run's data"
+        return {'gyro_bias_random_walk_rad_s2_rt_hz': math.sqrt(q_g),
+                'accel_bias_random_walk_m_s3_rt_hz': math.sqrt(q_a),
+                'gyro_source': src[0], 'accel_source': src[1],
+                'gyro_instability_covered_rad_s': instability_covered(q_g)}
+
     def bias_walk_growth(self) -> tuple[float, float, float, float]:
         """The largest bias walk this run's stationary windows showed against the one it
         started with: ``(q_gyro, q_accel, ratio_gyro, ratio_accel)``
@@ -994,6 +1016,9 @@ class CalibrationEstimator:
                                         cfg.gate_probability, cfg.gate_action == 'deweight')
         self._process_noise.start(self.layout, bias_random_walk(
             self.grade, self.start, cfg.aiding_gyro_noise_rad_s_rt_hz))
+        if self._walk_sources is None:  # with ProcessNoise.initial: the first filter's
+            self._walk_sources = bias_walk_sources(self.grade, self.start,
+                                                   cfg.aiding_gyro_noise_rad_s_rt_hz)
         if not self._run_counters:
             self.first_filter_dropped = int(self.counters.get('imu_dropped_before_alignment', 0))
         self._run_counters.append(self._filter.counters)

@@ -100,30 +100,67 @@ def gyro_bias_floor_rad_s(grade: ImuGrade) -> float:
     return math.sqrt(grade.gyro_noise_rad_s_rt_hz * math.sqrt(grade_bias_walk(grade)[0]))
 
 
+#: correlation time of a MEMS gyro's in-run bias instability (datasheets' "in-run bias
+#: stability"; the world units' 100 s): the instability a walk of PSD ``q`` covers is
+#: ``sqrt(q tau / 2)`` (:func:`instability_covered`)
+MEMS_INSTABILITY_CORRELATION_S = 100.0
+
+
+def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
+                    mems_gyro_noise_rad_s_rt_hz: float
+                    ) -> tuple[dict[str, float], dict[str, float]]:
+    """The candidates for the gyro and accelerometer bias random walk by where they come from
+    (PSDs [(rad/s)^2/s, (m/s^2)^2/s]; :func:`bias_random_walk` takes the largest of each):
+    ``grade`` (its Gauss-Markov ``2 sigma^2 / tau`` + random walk), ``coarse start`` (the
+    walk the stationary windows before the filter showed, item 5), and without a grade the
+    floors: ``accelerometer floor`` (:data:`ACCEL_BIAS_WALK`, any class) and ``MEMS floor``
+    (:data:`MEMS_BIAS_WALK`, a unit whose gyro noise is above ``mems_gyro_noise_rad_s_rt_hz``:
+    the stationary windows of a short plan cannot show a 100 s instability)."""
+    g: dict[str, float] = {}
+    a: dict[str, float] = {}
+    if grade is not None:
+        g['grade'], a['grade'] = grade_bias_walk(grade)
+    st = start
+    if st is not None:
+        g['coarse start'] = st.gyro_bias_random_walk_rad_s2_rt_hz ** 2
+        a['coarse start'] = st.accel_bias_random_walk_m_s3_rt_hz ** 2
+        if grade is None:
+            # no grade: never assume the accelerometer biases constant (any class)
+            a['accelerometer floor'] = (ACCEL_BIAS_WALK * st.accel_noise_m_s2_rt_hz) ** 2
+        if grade is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
+            # a MEMS unit and no grade: nor its gyro biases, and more of both
+            g['MEMS floor'] = (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2
+            a['MEMS floor'] = (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2
+    return g, a
+
+
 def bias_random_walk(grade: ImuGrade | None, start: CoarseStart | None,
                      mems_gyro_noise_rad_s_rt_hz: float) -> tuple[float, float]:
     """Spectral densities of the gyro and accelerometer bias random walk ``(q_g, q_a)``
-    [(rad/s)^2/s, (m/s^2)^2/s]: the grade's (Gauss-Markov ``2 sigma^2 / tau`` + random walk),
-    at least the walk the coarse start measured (item 5); a unit whose gyro noise is above
-    ``mems_gyro_noise_rad_s_rt_hz`` and that has no grade gets at least
-    :data:`MEMS_BIAS_WALK` (the stationary windows of a short plan cannot show a 100 s
-    instability)."""
-    gr = grade
-    qg = qa = 0.0
-    if gr is not None:
-        qg, qa = grade_bias_walk(gr)
-    st = start
-    if st is not None:  # item 5: the random walk the data show, if larger
-        qg = max(qg, st.gyro_bias_random_walk_rad_s2_rt_hz ** 2)
-        qa = max(qa, st.accel_bias_random_walk_m_s3_rt_hz ** 2)
-        if gr is None:
-            # no grade: never assume the accelerometer biases constant (any class)
-            qa = max(qa, (ACCEL_BIAS_WALK * st.accel_noise_m_s2_rt_hz) ** 2)
-        if gr is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
-            # a MEMS unit and no grade: nor its gyro biases, and more of both
-            qg = max(qg, (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2)
-            qa = max(qa, (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2)
-    return qg, qa
+    [(rad/s)^2/s, (m/s^2)^2/s]: the largest of :func:`bias_walk_terms` (the grade's, at least
+    the walk the coarse start measured, at least the floors of a unit without a grade)."""
+    g, a = bias_walk_terms(grade, start, mems_gyro_noise_rad_s_rt_hz)
+    return max(g.values(), default=0.0), max(a.values(), default=0.0)
+
+
+def bias_walk_sources(grade: ImuGrade | None, start: CoarseStart | None,
+                      mems_gyro_noise_rad_s_rt_hz: float) -> tuple[str, str]:
+    """Which term of :func:`bias_walk_terms` sets each walk (gyro, accel); ``none`` if 0 (the
+    first of equal terms: a grade before the data, the data before a floor)."""
+    out = []
+    for terms in bias_walk_terms(grade, start, mems_gyro_noise_rad_s_rt_hz):
+        best = max(terms.values(), default=0.0)
+        out.append(next((k for k, v in terms.items() if v == best), 'none') if best > 0
+                   else 'none')
+    return out[0], out[1]
+
+
+def instability_covered(q: float) -> float:
+    """The Gauss-Markov bias instability sigma (correlation time
+    :data:`MEMS_INSTABILITY_CORRELATION_S`) whose short-term growth a random walk of PSD ``q``
+    matches: ``sqrt(q tau / 2)`` (the inverse of :func:`grade_bias_walk`'s ``2 sigma^2 /
+    tau``)."""
+    return math.sqrt(max(q, 0.0) * MEMS_INSTABILITY_CORRELATION_S / 2.0)
 
 
 class ProcessNoise:
