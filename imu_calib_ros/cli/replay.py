@@ -16,7 +16,6 @@ printed on stderr and kept in the file under ``provenance.bag_reader``.
 """
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -99,20 +98,10 @@ def _srt_note(info: dict[str, Any]) -> None:
 
 
 def _walk_note(calib: Any) -> str | None:
-    """One line when the gyro-bias sigmas rest on the assumed MEMS drift alone (no grade, and
-    the plan's stationary windows showed none): the instability they cover, and what to do for
-    a less stable unit (``estimator.bias_walk`` of the file; noise.bias_walk_terms)."""
-    walk = calib.extra.get('estimator', {}).get('bias_walk') or {}
-    if walk.get('gyro_source') != 'MEMS floor':
-        return None
-    deg_h = math.degrees(1.0) * 3600.0
-    return (f'imu-calib replay: note: no --imu grade, and this plan\'s stationary windows '
-            f'showed no gyro bias drift: the gyro-bias sigmas assume the MEMS floor '
-            f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} deg/h/sqrt(h)), '
-            f'enough for an in-run bias instability up to '
-            f'{walk["gyro_instability_covered_rad_s"] * deg_h:.2g} deg/h (over 100 s); for a '
-            'less stable unit give --imu with its datasheet\'s instability, or record a plan '
-            'that returns to its poses minutes apart')
+    """:func:`~..core.estimator.noise.assumed_walk_note` of the file, as the command's note."""
+    from ..core.estimator.noise import assumed_walk_note
+    note = assumed_walk_note(calib.extra.get('estimator', {}).get('bias_walk') or {})
+    return None if note is None else f'imu-calib replay: note: {note}'
 
 
 def _reorder_note(stats: dict[str, ReorderStats], window_s: float, quiet: bool) -> None:

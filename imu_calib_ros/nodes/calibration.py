@@ -695,7 +695,22 @@ class CalibrationNode(Node):
         response.success, response.message = self.save()
         log = self.get_logger().info if response.success else self.get_logger().error
         log(f'save_calibration: {response.message}')
+        note = self._walk_note() if response.success else None
+        if note:
+            self.get_logger().warn(f'save_calibration: note: {note}')
         return response
+
+    def _walk_note(self) -> str | None:
+        """What ``imu-calib replay`` notes when the saved gyro-bias sigmas rest on the assumed
+        MEMS drift alone (``estimator.bias_walk`` of the file written), else None."""
+        from ..core.calibration import CalibrationResult
+        from ..core.estimator.noise import assumed_walk_note
+        try:
+            extra = CalibrationResult.load(self.config.output_file).extra
+        except (ImuCalibError, OSError):
+            return None
+        return assumed_walk_note(extra.get('estimator', {}).get('bias_walk') or {},
+                                 'the imu_grade parameter')
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         self._clear_pending()
@@ -730,6 +745,9 @@ class CalibrationNode(Node):
                   flush=True)
             if not ok:
                 raise ImuCalibError(message)
+            note = self._walk_note()
+            if note:
+                print(f'{self.get_name()}: note: {note}', file=sys.stderr, flush=True)
 
     def destroy_node(self) -> None:
         """Stop the input thread and the estimator worker, then the node."""

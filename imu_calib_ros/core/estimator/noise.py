@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -161,6 +161,24 @@ def instability_covered(q: float) -> float:
     matches: ``sqrt(q tau / 2)`` (the inverse of :func:`grade_bias_walk`'s ``2 sigma^2 /
     tau``)."""
     return math.sqrt(max(q, 0.0) * MEMS_INSTABILITY_CORRELATION_S / 2.0)
+
+
+def assumed_walk_note(walk: dict[str, Any], grade_option: str = '--imu') -> str | None:
+    """One sentence when the gyro-bias sigmas rest on the assumed MEMS drift alone (no grade,
+    and the plan's stationary windows showed none): the instability they cover and what to do
+    for a less stable unit; None otherwise. ``walk``: ``estimator.bias_walk`` of a calibration
+    file (:meth:`.estimator.CalibrationEstimator.bias_walk_summary`); ``grade_option``: how
+    the caller takes a grade (the CLI's ``--imu``, the node's ``imu_grade``)."""
+    if walk.get('gyro_source') != 'MEMS floor':
+        return None
+    deg_h = math.degrees(1.0) * 3600.0
+    return (f'no IMU grade, and the stationary windows showed no gyro bias drift: the gyro-bias '
+            f'sigmas assume the MEMS floor '
+            f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} deg/h/sqrt(h)), '
+            f'enough for an in-run bias instability up to '
+            f'{walk["gyro_instability_covered_rad_s"] * deg_h:.2g} deg/h (over 100 s); for a '
+            f'less stable unit give {grade_option} with its datasheet\'s instability, or record '
+            'a plan that returns to its poses minutes apart')
 
 
 class ProcessNoise:
