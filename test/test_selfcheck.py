@@ -365,3 +365,50 @@ def test_the_report_shows_the_verdict(nav_case: tuple[Path, Any], tmp_path: Path
     page = build_report(CalibrationResult.load(out))
     assert 'Self-check of the run' in page and 'FAILED, written with force' in page
     assert '<tr class="bad"><td>windows.chi2</td>' in page
+
+
+def test_a_run_that_ends_at_implausible_errors_fails_in_one_line(
+        nav_case: tuple[Path, Any]) -> None:
+    """A run whose filter ended at sensor errors no unit has (a consumer unit on 10 Hz joint
+    states with bursts of both streams lost: re-aligned 102 times) took the command down with
+    a traceback where the self-check compensates the stationary windows, or where a
+    re-alignment compensates its window. A gyro scale asymmetry of 3 (the output falls by
+    twice the rate whichever way it turns: no rate reproduces it, sensor_model's iteration
+    runs away) is such a state: the self-check now fails naming it, and a re-alignment at
+    such errors is a divergence (restart, then stop)."""
+    import dataclasses
+
+    from imu_calib_ros.core.estimator import error_model as em
+    from imu_calib_ros.core.estimator import load_estimator_config
+    from imu_calib_ros.core.estimator.replay import replay_run
+    from imu_calib_ros.core.estimator.run_ledger import IMPLAUSIBLE_END
+    from imu_calib_ros.core.fixture import load_fixture
+    from imu_calib_ros.core.sensor_model import ImplausibleErrors, SensorErrors, compensate
+    from msg_adapters.bag import iter_bag
+    bag, truth = nav_case
+    run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None,
+                     load_estimator_config(None))
+    assert run.verdict.passed, run.verdict.line
+    est = run.estimator
+    st = est.estimate_state()
+    theta_g = st.theta_gyro.copy()
+    theta_g[em.gyro_cols('gyro_asymmetry')] = 3.0
+    bad = em.errors_from_theta(theta_g, st.theta_accel, SensorErrors)
+    with pytest.raises(ImplausibleErrors):
+        compensate(bad, np.array([[1e-3, 2e-3, 3e-3]]), np.array([[0.0, 0.0, 9.8]]),
+                   np.zeros((1, 3)))
+    est.estimate_state = lambda: dataclasses.replace(st, theta_gyro=theta_g)  # type: ignore
+    w = run.ledger.window_statistics()
+    assert w is not None and w.worst_direction == IMPLAUSIBLE_END and w.dof == 0
+    verdict = run.ledger.verdict()
+    assert not verdict.passed and IMPLAUSIBLE_END in verdict.line
+    # the same errors at a re-alignment: a divergence declared, no exception
+    del est.estimate_state
+    est._errors = bad
+    restarts = est.restarts
+    est.reset_navigation()
+    for b in iter_bag(bag).batches():
+        (est.push_imu_batch if hasattr(b, 'gyro_rad_s') else est.push_joint_batch)(b)
+        if est.restarts > restarts or est.health()['diverged']:
+            break
+    assert est.restarts > restarts or est.health()['diverged']

@@ -909,8 +909,14 @@ class CalibrationEstimator:
             d2 = np.diff(jq[start_j:j1], n=2, axis=0)
             mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
             self._encoder_scatter_rad = float(np.max(1.4826 * mad / np.sqrt(6.0)))
-        al = align(t[:k1], w[:k1], f[:k1], self._with_offsets(q_mean), self._errors,
-                   self._mount, self.fixture, cfg.update_rate_hz)
+        try:
+            al = align(t[:k1], w[:k1], f[:k1], self._with_offsets(q_mean), self._errors,
+                       self._mount, self.fixture, cfg.update_rate_hz)
+        except sm.ImplausibleErrors as exc:
+            # a re-alignment at sensor errors no unit has (the compensation of the window
+            # does not converge): a divergence, as in a block, not a traceback
+            self._declare_divergence(f'implausible sensor errors at a re-alignment ({exc})')
+            return False
         if al is None:
             return False
         self._nominal_dt = al.nominal_dt_s

@@ -42,6 +42,10 @@ JUMP_BACK_NS = 1_000_000_000  # a stamp this much older than the newest: a new r
 SAME_POSE_RAD = 1e-3  # bias_walk: two windows at one pose (every joint within this)
 WALK_SHORT_S = 600.0  # bias_walk: pairs this close in time for the short-range walk
 WALK_CHECK_NS = 60_000_000_000  # bias_walk handed to the estimator every 60 s of data
+#: the worst direction of :meth:`RunLedger.window_statistics` when the run's final sensor
+#: errors cannot compensate a stationary window (``sensor_model.ImplausibleErrors``)
+IMPLAUSIBLE_END = ('the sensor errors the run ended at, which no unit has (their compensation '
+                   'of the stationary windows does not converge)')
 PLAUSIBLE_GROUPS = ('gyro_scale', 'gyro_misalignment', 'accel_scale', 'accel_misalignment')
 
 
@@ -396,7 +400,13 @@ class RunLedger:
         t_mid = np.array([0.5 * (x[0] + x[1]) for x in wins])
         fx = est.fixture
         zero = np.zeros_like(wm)
-        w_c, f_c = sm.compensate(errors, wm, fm, zero)
+        try:
+            w_c, f_c = sm.compensate(errors, wm, fm, zero)
+        except sm.ImplausibleErrors:
+            # a run that ended at sensor errors no unit has (a filter re-aligned a hundred
+            # times on 10 Hz joint states with bursts of both streams lost) took the command
+            # down with a traceback here: a failed check naming it instead
+            return WindowStatistics(K, math.inf, 0, math.inf, IMPLAUSIBLE_END, 1)
         n_g, n_a, q_g, q_a = (float(v) for v in est.assumed_noise())
         T = n * self._dt_ns * 1e-9
         sigma = np.column_stack([np.repeat((n_g / np.sqrt(T))[:, None], 3, 1),
