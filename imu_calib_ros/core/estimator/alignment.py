@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from .. import sensor_model as sm
 from . import error_model as em
+from .coarse import longest_still_stretch
 from .config import EstimatorConfig
 from .ekf import chunk_transition_rows
 from .error_model import StateLayout
@@ -35,24 +36,29 @@ IntArray = NDArray[np.int64]
 
 def still_run(jt: IntArray, jq: FloatArray, window_ns: int,
               tol_rad: float) -> tuple[int, int | None]:
-    """The first run of joint samples during which no joint moves by more than ``tol_rad``
-    between two samples and which lasts at least ``window_ns``.
+    """The first stretch of joint samples within ``tol_rad`` of its median (every joint) that
+    lasts at least ``window_ns``, inside a run during which no joint moves by more than
+    ``tol_rad`` between two samples (:func:`.coarse.longest_still_stretch`: the step test
+    alone is rate-dependent; at 1 kHz it took the last 0.5 s of a move, at 0.1 rad/s, for
+    rest, and the alignment there left a navigation unit's g-sensitivity 8 sigma off).
 
     Returns
     -------
     start_j, stop_j :
-        Indices of the run's first and last sample; ``stop_j`` is None when no run is long
-        enough yet, and ``start_j`` then is the first sample of the newest (current) still
-        run, the only one that can still become long enough.
+        Indices of the stretch's first and last sample; ``stop_j`` is None when none is long
+        enough yet, and ``start_j`` then is the first sample of the newest (current) run,
+        the only one that can still become long enough.
     """
     moving = np.any(np.abs(np.diff(jq, axis=0)) > tol_rad, axis=1)
     mv = np.nonzero(moving)[0]  # motion between sample i and i + 1
     starts = np.concatenate([[0], mv + 1])
-    stops = np.concatenate([mv, [len(jt) - 1]])  # last sample of each still run
-    ok = np.nonzero(jt[stops] - jt[starts] >= window_ns)[0]
-    if ok.size == 0:
-        return int(starts[-1]), None
-    return int(starts[ok[0]]), int(stops[ok[0]])
+    stops = np.concatenate([mv, [len(jt) - 1]])  # last sample of each run
+    for r in np.nonzero(jt[stops] - jt[starts] >= window_ns)[0].tolist():
+        a = int(starts[r])
+        stretch = longest_still_stretch(jq[a:int(stops[r]) + 1], tol_rad)
+        if stretch is not None and jt[a + stretch[1]] - jt[a + stretch[0]] >= window_ns:
+            return a + stretch[0], a + stretch[1]
+    return int(starts[-1]), None
 
 
 @dataclass(frozen=True)
