@@ -20,11 +20,13 @@ then ``SUMMARY``: cases passed (exit 0, nothing beyond 4 sigma), exits non-zero,
 (exit 1: never acceptable, CONTRACT 5 wants one line). Per case ``DIR/CASE`` keeps the bag,
 truth, fixture, calibration, stderr and a ``reproduce.sh``. Not a test: it prints figures.
 
-Found on 2026-11-25 (ec088d9, 82 cases): 1 kHz joint states on a navigation unit fail
+Found on 2026-11-25 (ec088d9, 82 cases): 1 kHz joint states on a navigation unit failed
 (``nav_joints1000@srt3``: refused by the self-check, with --force g-sensitivity 7-9 sigma
-off; 500 Hz already 3.5 sigma), and consumer/industrial MEMS and tactical units with 10 Hz
-joint states and bursts of both streams lost diverge (``cmems_all_at_once@kozlov3``) or, before
-93caf65, ended in a traceback (``cmems_p_j10_drops@kozlov3``).
+off; 500 Hz already 3.5 sigma: the alignment window, 400fadf), and consumer/industrial MEMS
+and tactical units with 10 Hz joint states and bursts of both streams lost diverged
+(``cmems_all_at_once@kozlov3``: the latency's sigma, 807312a) or ended in a traceback
+(``cmems_p_j10_drops@kozlov3``, 93caf65). The default set: 16/23 passed at 93caf65, 23/23 at
+807312a (docs/WORLD.md, session 12).
 """
 from __future__ import annotations
 
