@@ -5,7 +5,9 @@ previous one is rest only at low rates: at 1 kHz a table at 0.1 rad/s moves 1e-4
 sample. A world bag whose plan starts in motion, with joint states at 1 kHz, was aligned on
 the last half second of its first move (the IMU read 0.0095 rad/s), and a navigation unit's
 g-sensitivity came out 8.7 sigma off (bench_corners ``nav_joints1000@srt3``); at 250 Hz the
-same bag passed. The window is now the longest stretch within the tolerance of its median.
+same bag passed. The window is now the first 2 s in which every joint stays within the
+tolerance of its mean, judged on that window's samples alone: the same window whether the
+samples came in 50 ms pushes (the live node) or in one batch (replay).
 """
 from __future__ import annotations
 
@@ -37,18 +39,32 @@ def test_the_alignment_window_is_at_rest_whatever_the_joint_rate(rate_hz: float)
     assert stop is not None
     rest = jq[-1]
     window = jq[start:stop + 1]
-    # every sample of the window within the tolerance of the rest position (plus noise):
-    # the step test alone started it where the table still turned at up to TOL x rate
-    assert np.abs(window - rest).max() <= TOL + 1e-5, np.abs(window - rest).max()
+    # every sample of the window within the tolerance of the window's mean, so within twice
+    # it of the rest position: the step test alone started it where the table still turned
+    # at up to TOL x rate (at 1 kHz 14 mrad from rest)
+    assert np.abs(window - window.mean(axis=0)).max() <= TOL
+    assert np.abs(window - rest).max() <= 2 * TOL, np.abs(window - rest).max()
     assert jt[start] * 1e-9 >= settled - 0.5
     assert (jt[stop] - jt[start]) >= 2e9
 
 
-def test_no_window_yet_names_the_newest_run() -> None:
-    """Before 2 s of rest: no window, and the newest run's first sample (what the caller
-    keeps: bounded memory while it waits)."""
-    jt, jq, settled = _record(1000.0, 2)
-    n = int(np.searchsorted(jt, (settled + 1.0) * 1e9))
-    start, stop = still_run(jt[:n], jq[:n], int(2e9), TOL)
-    assert stop is None
-    assert 0 <= start < n
+@pytest.mark.parametrize('rate_hz, push_s', [(1000.0, 0.05), (100.0, 0.05), (10.0, 0.5),
+                                              (1000.0, 1.3)])
+def test_the_window_does_not_depend_on_how_the_samples_arrive(rate_hz: float,
+                                                               push_s: float) -> None:
+    """As the estimator calls it: after each push, on the joint record it kept (from the
+    returned start while no window is found), until a window is found. The same window as
+    one call on the whole record (a median over the run so far drifted with the pushes: at
+    1 kHz in 50 ms pushes it began 0.27 s earlier, in the move's tail, 1.9e-4 rad off)."""
+    jt, jq, _ = _record(rate_hz, 3)
+    whole = still_run(jt, jq, int(2e9), TOL)
+    assert whole[1] is not None
+    kept, n, step = 0, 0, max(1, int(round(push_s * rate_hz)))
+    while n < len(jt):
+        n = min(n + step, len(jt))
+        start, stop = still_run(jt[kept:n], jq[kept:n], int(2e9), TOL)
+        if stop is not None:
+            assert (kept + start, kept + stop) == whole
+            return
+        kept += start  # what the estimator keeps (keep_from) while it waits
+    raise AssertionError('no window in pushes')
