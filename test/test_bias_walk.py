@@ -156,7 +156,7 @@ def test_the_file_says_where_the_bias_walk_came_from() -> None:
     assert math.sqrt(q_a) == pytest.approx(MEMS_BIAS_WALK[1] * 1.2e-3, rel=1e-12)
     # the data's walk above the floor wins; below it, the floor stays
     big = _start(1.2e-4, 1.2e-3, 10 * MEMS_BIAS_WALK[0] * 1.2e-4, 0.1 * MEMS_BIAS_WALK[1] * 1.2e-3)
-    assert bias_walk_sources(None, big, mems_threshold) == ('coarse start', 'MEMS floor')
+    assert bias_walk_sources(None, big, mems_threshold) == ('stationary windows', 'MEMS floor')
     # a navigation gyro without a grade: no gyro walk assumed, the accelerometer floor
     nav = _start(1e-7, 2e-5)
     assert bias_walk_sources(None, nav, mems_threshold) == ('none', 'accelerometer floor')
@@ -181,7 +181,7 @@ def test_the_command_names_the_instability_an_assumed_mems_walk_covers() -> None
             'gyro_instability_covered_rad_s': instability_covered(q * q)}
     note = _walk_note(SimpleNamespace(extra={'estimator': {'bias_walk': walk}}))
     assert note is not None and '(33 deg/h/sqrt(h))' in note and 'up to 3.9 deg/h' in note
-    for source in ('grade', 'coarse start', "raised by the run's data"):
+    for source in ('grade', 'stationary windows', "raised by the run's data"):
         calib = SimpleNamespace(extra={'estimator': {'bias_walk': {**walk,
                                                                    'gyro_source': source}}})
         assert _walk_note(calib) is None

@@ -314,12 +314,12 @@ def run(args: Any) -> int:
                       'from the last estimate (Savage sect. 8)', file=sys.stderr)
         reorder = passes[-1].reorder_stats
         verdict = run_.verdict
-        note = _walk_note(calib)
-        if note and not args.quiet:
-            print(note, file=sys.stderr)
         if not verdict.passed and not args.force:
             raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_, fixture)}; no '
                                  'calibration written (--force writes it, marked as failing)')
+        note = _walk_note(calib)  # about the file written: not before a refusal
+        if note and not args.quiet:
+            print(note, file=sys.stderr)
     _reorder_note(reorder, args.reorder_window, args.quiet)
     calib = _with_provenance(calib, args, reorder)
     if verdict is not None:  # the same rule as the node's save (core/estimator/selfcheck.py)

@@ -692,8 +692,8 @@ def compensate(errors: SensorErrors, gyro_meas_rad_s: ArrayLike, accel_meas_m_s2
             omega[k], force[k] = _compensate_one(
                 c, wl[k], al[k], None if wdl is None else wdl[k], max_iterations)
     else:
-        # a runaway iteration (implausible errors) overflows before it is refused below
-        # (ImplausibleErrors): the refusal names it, numpy's warnings would only add noise
+        # a runaway iteration (implausible errors) overflows before _compensate_rows refuses
+        # it (ImplausibleErrors): the refusal names it, numpy's warnings would only add noise
         with np.errstate(over='ignore', invalid='ignore'):
             omega, force = _compensate_rows(c, wm2, am2, wd, stamps, max_iterations)
     return omega.reshape(shape), force.reshape(shape)

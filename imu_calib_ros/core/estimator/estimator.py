@@ -661,7 +661,9 @@ class CalibrationEstimator:
         states and bursts of both streams lost the coarse start measured -7.7 +- 5.5 ms
         (truth 0): at 0.2 rad/s a 1.5 mrad attitude error against a 0.1 mrad noise, every
         velocity update gated from then on, and a diverged run; with the true latency it
-        passed (bench_corners ``cmems_j10_drops_im@srt2``)."""
+        passed (bench_corners ``cmems_j10_drops_im@srt2``). A bound, not a model: the error
+        of a constant latency has one sign through a turn, and each update takes it as
+        independent (a latency state would model it)."""
         st = self.start
         sd = 0.0 if st is None else float(st.joint_latency_sigma_s)
         if not (math.isfinite(sd) and sd > 0.0):

@@ -111,8 +111,9 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
                     ) -> tuple[dict[str, float], dict[str, float]]:
     """The candidates for the gyro and accelerometer bias random walk by where they come from
     (PSDs [(rad/s)^2/s, (m/s^2)^2/s]; :func:`bias_random_walk` takes the largest of each):
-    ``grade`` (its Gauss-Markov ``2 sigma^2 / tau`` + random walk), ``coarse start`` (the
-    walk the stationary windows before the filter showed, item 5), and without a grade the
+    ``grade`` (its Gauss-Markov ``2 sigma^2 / tau`` + random walk), ``stationary windows``
+    (the walk the coarse start's windows showed, item 5, or an earlier pass's:
+    ``replay.walk_grown``), and without a grade the
     floors: ``accelerometer floor`` (:data:`ACCEL_BIAS_WALK`, any class) and ``MEMS floor``
     (:data:`MEMS_BIAS_WALK`, a unit whose gyro noise is above ``mems_gyro_noise_rad_s_rt_hz``:
     the stationary windows of a short plan cannot show a 100 s instability)."""
@@ -122,8 +123,8 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
         g['grade'], a['grade'] = grade_bias_walk(grade)
     st = start
     if st is not None:
-        g['coarse start'] = st.gyro_bias_random_walk_rad_s2_rt_hz ** 2
-        a['coarse start'] = st.accel_bias_random_walk_m_s3_rt_hz ** 2
+        g['stationary windows'] = st.gyro_bias_random_walk_rad_s2_rt_hz ** 2
+        a['stationary windows'] = st.accel_bias_random_walk_m_s3_rt_hz ** 2
         if grade is None:
             # no grade: never assume the accelerometer biases constant (any class)
             a['accelerometer floor'] = (ACCEL_BIAS_WALK * st.accel_noise_m_s2_rt_hz) ** 2
