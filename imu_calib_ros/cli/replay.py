@@ -100,7 +100,7 @@ def _srt_note(info: dict[str, Any]) -> None:
 def _walk_note(calib: Any) -> str | None:
     """:func:`~..core.estimator.noise.assumed_walk_note` of the file, as the command's note."""
     from ..core.estimator.noise import assumed_walk_note
-    note = assumed_walk_note(calib.extra.get('estimator', {}).get('bias_walk') or {})
+    note = assumed_walk_note(calib.extra)
     return None if note is None else f'imu-calib replay: note: {note}'
 
 

@@ -702,15 +702,12 @@ class CalibrationNode(Node):
 
     def _walk_note(self) -> str | None:
         """What ``imu-calib replay`` notes when the saved gyro-bias sigmas rest on the assumed
-        MEMS drift alone (``estimator.bias_walk`` of the file written), else None."""
-        from ..core.calibration import CalibrationResult
+        MEMS drift alone (``estimator.bias_walk`` of the estimate :meth:`save` wrote), else
+        None."""
         from ..core.estimator.noise import assumed_walk_note
-        try:
-            extra = CalibrationResult.load(self.config.output_file).extra
-        except (ImuCalibError, OSError):
-            return None
-        return assumed_walk_note(extra.get('estimator', {}).get('bias_walk') or {},
-                                 'the imu_grade parameter')
+        good = self.runner.last_good
+        return None if good is None else assumed_walk_note(good.result.extra,
+                                                           'the imu_grade parameter')
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         self._clear_pending()

@@ -204,10 +204,15 @@ def still_spans(t_ns: NDArray[np.int64], q: FloatArray, min_static_s: float, tol
     long = (t_ns[stops] - t_ns[starts]) * 1e-9 >= min_static_s
     out = []
     for a, b in zip(starts[long].tolist(), stops[long].tolist()):
-        stretch = longest_still_stretch(q[a:b + 1], tol_rad)
-        if stretch is None:
+        # the longest stretch within tol of the run's median: a slow creep at either end
+        # (a move's tail below tol per sample) is cut instead of losing the window
+        near = np.all(np.abs(q[a:b + 1] - np.median(q[a:b + 1], axis=0)) <= tol_rad, axis=1)
+        edges = np.diff(np.concatenate([[0], near.astype(np.int8), [0]]))
+        ups, downs = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        if not len(ups):
             continue
-        a, b = a + stretch[0], a + stretch[1]
+        k = int(np.argmax(downs - ups))
+        a, b = a + int(ups[k]), a + int(downs[k]) - 1
         t0, t1 = int(t_ns[a]) + trim, int(t_ns[b]) - trim
         if (t1 - t0) * 1e-9 < min_static_s:
             continue
@@ -217,21 +222,6 @@ def still_spans(t_ns: NDArray[np.int64], q: FloatArray, min_static_s: float, tol
             continue
         out.append((t0, t1, qs.mean(axis=0)))
     return out, int(starts[-1])
-
-
-def longest_still_stretch(q: FloatArray, tol_rad: float) -> tuple[int, int] | None:
-    """First and last index of the longest stretch of joint samples ``q (n, joints)`` within
-    ``tol_rad`` of their median, every joint (None if none): a run of samples that each move
-    less than ``tol_rad`` from the last also holds a move's slow tail or start, whose travel
-    over the run is far more than ``tol_rad`` (at 1 kHz anything below 0.1 rad/s); the
-    median is the rest position of a run that is mostly at rest, and the tail is cut."""
-    near = np.all(np.abs(q - np.median(q, axis=0)) <= tol_rad, axis=1)
-    edges = np.diff(np.concatenate([[0], near.astype(np.int8), [0]]))
-    ups, downs = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
-    if not len(ups):
-        return None
-    k = int(np.argmax(downs - ups))
-    return int(ups[k]), int(downs[k]) - 1
 
 
 def white_noise_density(x: FloatArray, dt_s: float, point: bool = False) -> float:

@@ -165,7 +165,6 @@ class CalibrationEstimator:
             'bias_noise_adaptations': 0, 'bias_walk_raised': 0}
         self._configure()
         self._process_noise = ProcessNoise(cfg.noise_scale)
-        self._walk_sources: tuple[str, str] | None = None  # of the first filter's walk
         self._reset_filter_side()
         self.frame_id = ''  # header.frame_id of the first accepted IMU data
         self._running = False
@@ -980,8 +979,11 @@ class CalibrationEstimator:
         covers (:func:`.noise.instability_covered`): a unit less stable than that, with no
         grade to say so and no plan that shows it, gets optimistic gyro-bias sigmas."""
         _, _, q_g, q_a = self.assumed_noise()
-        q0 = self._process_noise.initial or (0.0, 0.0)
-        src = list(self._walk_sources or ('none', 'none'))
+        q0 = self._process_noise.initial
+        # the grade and the coarse start are those of the first filter (ProcessNoise.initial)
+        src = (['none', 'none'] if q0 is None else list(bias_walk_sources(
+            self.grade, self.start, self.config.aiding_gyro_noise_rad_s_rt_hz)))
+        q0 = q0 or (0.0, 0.0)
         for i, q in enumerate((q_g, q_a)):
             if q > q0[i] * (1.0 + 1e-9):
                 src[i] = "raised by the run's data"
@@ -1045,9 +1047,6 @@ class CalibrationEstimator:
                                         cfg.gate_probability, cfg.gate_action == 'deweight')
         self._process_noise.start(self.layout, bias_random_walk(
             self.grade, self.start, cfg.aiding_gyro_noise_rad_s_rt_hz))
-        if self._walk_sources is None:  # with ProcessNoise.initial: the first filter's
-            self._walk_sources = bias_walk_sources(self.grade, self.start,
-                                                   cfg.aiding_gyro_noise_rad_s_rt_hz)
         if not self._run_counters:
             self.first_filter_dropped = int(self.counters.get('imu_dropped_before_alignment', 0))
         self._run_counters.append(self._filter.counters)

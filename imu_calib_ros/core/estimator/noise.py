@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -164,12 +164,14 @@ def instability_covered(q: float) -> float:
     return math.sqrt(max(q, 0.0) * MEMS_INSTABILITY_CORRELATION_S / 2.0)
 
 
-def assumed_walk_note(walk: dict[str, Any], grade_option: str = '--imu') -> str | None:
+def assumed_walk_note(extra: Mapping[str, Any], grade_option: str = '--imu') -> str | None:
     """One sentence when the gyro-bias sigmas rest on the assumed MEMS drift alone (no grade,
     and the plan's stationary windows showed none): the instability they cover and what to do
-    for a less stable unit; None otherwise. ``walk``: ``estimator.bias_walk`` of a calibration
-    file (:meth:`.estimator.CalibrationEstimator.bias_walk_summary`); ``grade_option``: how
-    the caller takes a grade (the CLI's ``--imu``, the node's ``imu_grade``)."""
+    for a less stable unit; None otherwise. ``extra``: a calibration's extra mapping, whose
+    ``estimator.bias_walk`` is :meth:`.estimator.CalibrationEstimator.bias_walk_summary`;
+    ``grade_option``: how the caller takes a grade (the CLI's ``--imu``, the node's
+    ``imu_grade``)."""
+    walk = (extra.get('estimator') or {}).get('bias_walk') or {}
     if walk.get('gyro_source') != 'MEMS floor':
         return None
     deg_h = math.degrees(1.0) * 3600.0
