@@ -450,6 +450,25 @@ def log_at_exit(node: Node, message: str) -> None:
 
 
 
+# the longest an executor waits before it looks at its context again (see spin_until_shutdown)
+SPIN_WAKE_S = 1.0
+
+
+def spin_until_shutdown(executor: Any, wake_s: float = SPIN_WAKE_S) -> None:
+    """``executor.spin()``, but no wait longer than ``wake_s`` before the context is checked.
+
+    rclpy's signal thread triggers the executors' SIGINT guard condition *before* it shuts the
+    contexts down. An executor woken in between sees its context still valid and waits again,
+    with no timeout; if nothing else wakes it (``use_sim_time`` with the ``/clock`` publisher
+    gone stops every timer), the node ignores SIGINT until it is killed. Seen once in CI: the
+    calibration node in test_nodes_selfcheck.py, stack dump in ``rcl_wait``, killed after
+    120 s. A bounded wait ends the spin at most ``wake_s`` after the shutdown.
+    """
+    context = executor.context
+    while context.ok():
+        executor.spin_once(timeout_sec=wake_s)
+
+
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
              interface: NodeInterface | None = None) -> int:
     """The Jazzy start/stop form around ``make_node()``; returns the exit status.
@@ -485,7 +504,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         ex = SingleThreadedExecutor()
         ex.add_node(node)
         try:
-            ex.spin()
+            spin_until_shutdown(ex)
         finally:
             ex.shutdown()
     except (KeyboardInterrupt, ExternalShutdownException):
