@@ -12,6 +12,7 @@ at arbitrary instants (a cubic spline, issue 11).
 from __future__ import annotations
 
 import bisect
+import math
 
 from typing import Any
 
@@ -347,4 +348,19 @@ def point_to_mean(w: FloatArray, f: FloatArray,
     w0 = w[:1] if prev is None else prev[1][None, :]
     f0 = f[:1] if prev is None else prev[2][None, :]
     return (0.5 * (w + np.vstack([w0, w[:-1]])), 0.5 * (f + np.vstack([f0, f[:-1]])))
+
+
+#: the spread of a second difference ``q[k+1] - 2 q[k] + q[k-1]`` of white noise: sqrt(6) sigma
+_SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
+
+
+def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
+    """Each joint's encoder noise [rad] from samples ``q_rad`` (n, joints): the scatter of the
+    second differences (a constant rate cancels, and a constant acceleration with the median
+    taken off), 1.4826 MAD over sqrt(6); steps across the +-pi wrap are ignored. The one
+    estimate behind the alignment's motion bridges and the encoder-rate weight."""
+    d2 = np.diff(np.asarray(q_rad, float), n=2, axis=0)
+    d2 = np.where(np.abs(d2) > np.pi, 0.0, d2)  # wrapped at +-pi
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / _SECOND_DIFFERENCE_GAIN
 

@@ -51,7 +51,7 @@ from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
 from .alignment import align, initial_covariance, level_coupling, still_run
 from .bootstrap import Bootstrap
-from .buffers import ImuBuffer, JointBuffer, point_to_mean
+from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
 from .coarse import CoarseStart, implausible
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
@@ -93,8 +93,6 @@ ENCODER_NOISE_MIN = 50
 #: rms derivative of a cubic spline through unit white noise at unit spacing, at instants
 #: spread over the intervals (1.17 at the knots; numerical, scipy's not-a-knot spline)
 SPLINE_RATE_NOISE = 1.57
-#: median |q[k+1] - 2 q[k] + q[k-1]| of unit white noise: 0.6745 sqrt(6)
-MEDIAN_SECOND_DIFFERENCE = 1.652
 RATE_WEIGHT_EVERY = 20  # blocks between two estimates of the encoders' weight
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
 BRIDGE_JOINTS_AHEAD = 9
@@ -724,7 +722,7 @@ class CalibrationEstimator:
         """The encoders' weight in :meth:`_encoder_rate_imu`, ``s_g^2 / (s_g^2 + s_e^2)``
         per IMU axis: ``s_g^2 = N^2 / (2 dt)``, the gyros' two-sample mean (white-noise
         density ``N``); ``s_e^2 = sum_j (1.57 s_j / dt_j)^2 / 3``, the spline's rate through
-        each joint's encoder noise ``s_j`` (from the median second difference of its latest
+        each joint's encoder noise ``s_j`` (:func:`.buffers.encoder_noise_rad` of its latest
         samples: motion and quantization included, a move's own acceleration negligible at
         the joint rate) over the joints' median sample spacing ``dt_j``. None (the gyros alone,
         and asked again at the next block) without enough joint samples."""
@@ -734,9 +732,7 @@ class CalibrationEstimator:
         jt = np.array(jb.t_ns[-ENCODER_NOISE_SAMPLES:], np.int64)
         jq = np.array(jb.q_rad[-ENCODER_NOISE_SAMPLES:], float)
         dt_j = float(np.median(np.diff(jt))) * 1e-9
-        d2 = jq[2:] - 2.0 * jq[1:-1] + jq[:-2]
-        d2 = np.where(np.abs(d2) > np.pi, 0.0, d2)  # wrapped at +-pi
-        s_j = np.median(np.abs(d2), axis=0) / MEDIAN_SECOND_DIFFERENCE
+        s_j = encoder_noise_rad(jq)
         s_e2 = float(np.sum((SPLINE_RATE_NOISE * s_j / max(dt_j, 1e-6)) ** 2)) / 3.0
         s_g2 = self._process_noise.white[0] ** 2 / (2.0 * self._nominal_dt)
         if s_g2 <= 0.0:
@@ -926,11 +922,9 @@ class CalibrationEstimator:
         k1 = int(np.searchsorted(t, t_start + win_ns, side='right'))
         j1 = min(stop_j + 1, int(np.searchsorted(jt, t_start + win_ns, side='right')))
         q_mean = jq[start_j:j1].mean(axis=0)  # the window only: same for any push pattern
-        if j1 - start_j > 8:  # encoder noise (for the motion bridges): second differences
-            # (a creep within the still tolerance cancels), 1.48 MAD, over sqrt(6)
-            d2 = np.diff(jq[start_j:j1], n=2, axis=0)
-            mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-            self._encoder_scatter_rad = float(np.max(1.4826 * mad / np.sqrt(6.0)))
+        if j1 - start_j > 8:  # encoder noise (for the motion bridges; a creep within the
+            # still tolerance cancels in the second differences)
+            self._encoder_scatter_rad = float(np.max(encoder_noise_rad(jq[start_j:j1])))
         try:
             al = align(t[:k1], w[:k1], f[:k1], self._with_offsets(q_mean), self._errors,
                        self._mount, self.fixture, cfg.update_rate_hz)
