@@ -186,3 +186,22 @@ def test_the_command_names_the_instability_an_assumed_mems_walk_covers() -> None
                                                                    'gyro_source': source}}})
         assert _walk_note(calib) is None
     assert _walk_note(SimpleNamespace(extra={})) is None  # a file from another method
+
+
+def test_the_command_names_the_walk_the_innovations_chose() -> None:
+    """After a replay's walk profile the note gives the chosen walk, its fraction of the white
+    noise and the passes it compared: 0.05 x 1.2e-4 = 6e-6 rad/s/sqrt(s) = 74 deg/h/sqrt(h),
+    covering 6e-6 sqrt(50) = 4.24e-5 rad/s = 8.8 deg/h over 100 s."""
+    from types import SimpleNamespace
+
+    from imu_calib_ros.cli.replay import _walk_note
+    from imu_calib_ros.core.estimator.noise import LIKELIHOOD_SOURCE
+    q = 0.05 * 1.2e-4
+    walk = {'gyro_bias_random_walk_rad_s2_rt_hz': q, 'gyro_source': LIKELIHOOD_SOURCE,
+            'gyro_instability_covered_rad_s': instability_covered(q * q),
+            'gyro_walk_fraction_of_white_noise': 0.05,
+            'gyro_walk_profile': [[0.011, 3.0], [0.022, 1.0], [0.044, 0.0], [0.088, 2.5]]}
+    note = _walk_note(SimpleNamespace(extra={'estimator': {'bias_walk': walk}}))
+    assert note is not None, note
+    assert '(74 deg/h/sqrt(h), 0.05 of the white noise' in note and 'over 4 passes' in note
+    assert 'up to 8.8 deg/h' in note

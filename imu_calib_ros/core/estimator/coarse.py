@@ -133,6 +133,12 @@ class CoarseStart:
     #: their sigmas (n,) [rad]; inf where gravity does not show a zero (the last joint's is
     #: the mounting, a vertical one's a heading)
     joint_zero_sigma_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: a MEMS unit without a grade: its gyro bias walk as a fraction of its white-noise
+    #: density, chosen by the innovations' likelihood over whole passes
+    #: (:func:`.replay.profile_gyro_walk`); 0 before that (the MEMS floor is assumed)
+    gyro_walk_fraction: float = 0.0
+    #: the profile behind it: ``((fraction, NLL - least NLL), ...)``
+    gyro_walk_profile: tuple[tuple[float, float], ...] = ()
 
     def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT
                    ) -> bool:

@@ -29,6 +29,8 @@ from ..rotation import skew
 from .quantiles import chi2_ppf
 from .error_model import StateLayout
 
+_LOG_2PI = math.log(2.0 * math.pi)
+
 FloatArray = NDArray[np.float64]
 
 
@@ -158,6 +160,11 @@ class GateCounters:
     # squares, per component (the history's innovation plot)
     innov_sum: dict[str, FloatArray] = field(default_factory=dict)
     innov_sq: dict[str, FloatArray] = field(default_factory=dict)
+    # every update with a positive definite S: the innovations' negative log-likelihood
+    # 0.5 (min(NIS, gate) + log det S + m log 2 pi) (a gated one counts at the gate: one
+    # outlier must not choose a noise model), and how many updates it sums
+    nll_sum: float = 0.0
+    nll_updates: int = 0
 
 
 class ErrorStateFilter:
@@ -237,13 +244,18 @@ class ErrorStateFilter:
         c = self.counters
         chol, info = _potrf(S)
         y = z - H_s @ self.x
+        gate = self._threshold(len(z))
         if info == 0:
             S_inv_y = _potrs(chol, y)[0]
             nis = float(y @ S_inv_y)
+            # log det S from the Cholesky factor's diagonal (scaled units: the same offset
+            # for every run of one layout)
+            c.nll_sum += 0.5 * (min(nis, gate) + len(z) * _LOG_2PI
+                                + 2.0 * math.log(float(chol.diagonal().prod())))
+            c.nll_updates += 1
         else:
             nis = np.inf
         c.last_nis[kind] = nis
-        gate = self._threshold(len(z))
         passed = bool(np.isfinite(nis) and nis <= gate)
         if not passed:
             c.rejected[kind] = c.rejected.get(kind, 0) + 1

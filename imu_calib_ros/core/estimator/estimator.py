@@ -981,16 +981,30 @@ class CalibrationEstimator:
         for i, q in enumerate((q_g, q_a)):
             if q > q0[i] * (1.0 + 1e-9):
                 src[i] = "raised by the run's data"
-        return {'gyro_bias_random_walk_rad_s2_rt_hz': math.sqrt(q_g),
-                'accel_bias_random_walk_m_s3_rt_hz': math.sqrt(q_a),
-                'gyro_source': src[0], 'accel_source': src[1],
-                'gyro_instability_covered_rad_s': instability_covered(q_g)}
+        out: dict[str, Any] = {
+            'gyro_bias_random_walk_rad_s2_rt_hz': math.sqrt(q_g),
+            'accel_bias_random_walk_m_s3_rt_hz': math.sqrt(q_a),
+            'gyro_source': src[0], 'accel_source': src[1],
+            'gyro_instability_covered_rad_s': instability_covered(q_g)}
+        st = self.start
+        if st is not None and st.gyro_walk_profile:
+            # the replay's profile (replay.profile_gyro_walk): walk / white noise -> NLL rise
+            out['gyro_walk_fraction_of_white_noise'] = float(st.gyro_walk_fraction)
+            out['gyro_walk_profile'] = [[float(f), float(d)] for f, d in st.gyro_walk_profile]
+        return out
 
     def bias_walk_growth(self) -> tuple[float, float, float, float]:
         """The largest bias walk this run's stationary windows showed against the one it
         started with: ``(q_gyro, q_accel, ratio_gyro, ratio_accel)``
         (:meth:`.noise.ProcessNoise.grown`)."""
         return self._process_noise.grown()
+
+    def innovation_nll(self) -> tuple[float, int]:
+        """The whole run's innovations' negative log-likelihood over every filter of the run
+        (:class:`~.ekf.GateCounters` ``nll_sum``) and how many updates it sums: the measure
+        :func:`.replay.profile_gyro_walk` compares bias walks by."""
+        return (float(sum(c.nll_sum for c in self._run_counters)),
+                int(sum(c.nll_updates for c in self._run_counters)))
 
     def nis_totals(self) -> dict[str, tuple[int, int, float]]:
         """Whole-run gate counts per measurement kind over every filter of the run:

@@ -44,6 +44,8 @@ _LOG = logging.getLogger('imu_calib_ros.estimator')
 # the stationary windows cannot resolve, but that left a 0.6 ug sigma 5 sigma off on a
 # 30-min world run).
 MEMS_BIAS_WALK = (0.022, 0.035)
+#: the gyro walk's source when a replay chose it (:func:`.replay.profile_gyro_walk`)
+LIKELIHOOD_SOURCE = 'innovation likelihood'
 ACCEL_BIAS_WALK = 0.015  # the accelerometer's, any class without a grade
 
 # Least white-noise density the filter assumes, (gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz)):
@@ -129,8 +131,12 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
             # no grade: never assume the accelerometer biases constant (any class)
             a['accelerometer floor'] = (ACCEL_BIAS_WALK * st.accel_noise_m_s2_rt_hz) ** 2
         if grade is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
-            # a MEMS unit and no grade: nor its gyro biases, and more of both
-            g['MEMS floor'] = (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2
+            # a MEMS unit and no grade: nor its gyro biases, and more of both; the gyro's
+            # chosen by the run's innovations once a replay has profiled it
+            if st.gyro_walk_fraction > 0.0:
+                g[LIKELIHOOD_SOURCE] = (st.gyro_walk_fraction * st.gyro_noise_rad_s_rt_hz) ** 2
+            else:
+                g['MEMS floor'] = (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2
             a['MEMS floor'] = (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2
     return g, a
 
@@ -167,14 +173,23 @@ def instability_covered(q: float) -> float:
 def assumed_walk_note(extra: Mapping[str, Any], grade_option: str = '--imu') -> str | None:
     """One sentence when the gyro-bias sigmas rest on the assumed MEMS drift alone (no grade,
     and the plan's stationary windows showed none): the instability they cover and what to do
-    for a less stable unit; None otherwise. ``extra``: a calibration's extra mapping, whose
+    for a less stable unit; or on the walk a replay chose by the innovations' likelihood
+    (:func:`.replay.profile_gyro_walk`): that walk and what it covers; None otherwise.
+    ``extra``: a calibration's extra mapping, whose
     ``estimator.bias_walk`` is :meth:`.estimator.CalibrationEstimator.bias_walk_summary`;
     ``grade_option``: how the caller takes a grade (the CLI's ``--imu``, the node's
     ``imu_grade``)."""
     walk = (extra.get('estimator') or {}).get('bias_walk') or {}
+    deg_h = math.degrees(1.0) * 3600.0
+    if walk.get('gyro_source') == LIKELIHOOD_SOURCE:
+        return (f'no IMU grade: the gyro bias walk is the one the run\'s innovations allow '
+                f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} '
+                f'deg/h/sqrt(h), {walk["gyro_walk_fraction_of_white_noise"]:.2g} of the white '
+                f'noise: the likelihood\'s one-sided 95 % upper bound over '
+                f'{len(walk.get("gyro_walk_profile", ()))} passes), an in-run bias instability '
+                f'up to {walk["gyro_instability_covered_rad_s"] * deg_h:.2g} deg/h (over 100 s)')
     if walk.get('gyro_source') != 'MEMS floor':
         return None
-    deg_h = math.degrees(1.0) * 3600.0
     return (f'no IMU grade, and the stationary windows showed no gyro bias drift: the gyro-bias '
             f'sigmas assume the MEMS floor '
             f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} deg/h/sqrt(h)), '

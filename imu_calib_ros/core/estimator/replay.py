@@ -23,6 +23,7 @@ from ..errors import InputError
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from .config import EstimatorConfig
 from .estimator import CalibrationEstimator, Estimate
+from .noise import MEMS_BIAS_WALK, bias_walk_sources
 from .run_ledger import RunLedger
 from .selfcheck import SelfCheckConfig, Verdict
 
@@ -137,6 +138,75 @@ def walk_grown(est: CalibrationEstimator) -> tuple[str, Any]:
             dataclasses.replace(st, **grown))
 
 
+#: the gyro walk profile's range, as fractions of the white-noise density per sqrt(s) (real
+#: MEMS parts span 0.006-0.06, noise.MEMS_BIAS_WALK); it steps by factors of 2 from the floor
+WALK_PROFILE_RANGE = (0.002, 0.2)
+#: the walk chosen is the likelihood's one-sided 95 % upper bound: the fraction above the
+#: most likely one where the NLL has risen by chi2(0.90, 1) / 2
+WALK_PROFILE_RISE = 1.35
+
+
+def profile_gyro_walk(run_pass: Callable[[float], tuple[CalibrationEstimator, RunLedger] | None],
+                      floor: float) -> tuple[float, tuple[tuple[float, float], ...],
+                                             tuple[CalibrationEstimator, RunLedger] | None]:
+    """Issue 11 item 5 for a MEMS unit without a grade: its gyro bias walk chosen by the data.
+
+    A plan's stationary windows cannot show a 100 s instability, and real parts' walks span
+    a factor 10 around the floor :data:`.noise.MEMS_BIAS_WALK` assumes: a unit better than the
+    floor got gyro-bias sigmas twice its noise limit, a worse one sigmas too small (the arm's
+    MEMS unit, 0.056 of its noise density against the floor's 0.022). The whole run's
+    innovations decide: ``run_pass(fraction)`` replays from the coarse start with the walk
+    at ``fraction`` x the white-noise density and returns its estimator (None if it diverged);
+    their negative log-likelihoods (:meth:`~.estimator.CalibrationEstimator.innovation_nll`)
+    are compared at factors of 2 from ``floor`` until the least is bracketed and the NLL has
+    risen by :data:`WALK_PROFILE_RISE` above it (within :data:`WALK_PROFILE_RANGE`). The
+    fraction chosen is where it crosses that rise above the most likely one (log-linear
+    between the two passes around it), the one-sided 95 % upper bound: the likelihood is
+    flat towards small walks, and its maximum alone fell 2-4x below the truth on some of the
+    grid's MEMS runs (gyro-bias z up to 3.1); the bound found the arm unit's 0.056 at 0.052.
+
+    Returns ``(fraction, profile, pass)``: ``profile`` is ``((fraction, NLL - least), ...)``
+    in fraction order, ``pass`` the estimator and ledger of a profile pass at the chosen
+    fraction when one was (within 3 %), else None; ``(floor, (), None)`` when every pass
+    diverged.
+    """
+    lo, hi = WALK_PROFILE_RANGE
+    evals: dict[float, tuple[float, tuple[CalibrationEstimator, RunLedger] | None]] = {}
+
+    def evaluate(f: float) -> None:
+        res = run_pass(f)
+        evals[f] = ((res[0].innovation_nll()[0] if res is not None else math.inf), res)
+
+    for f in (floor / 2.0, floor, 2.0 * floor):
+        evaluate(f)
+    while True:
+        fs = sorted(evals)
+        nll = np.array([evals[f][0] for f in fs])
+        if not np.isfinite(nll).any():
+            return floor, (), None
+        i = int(np.argmin(nll))
+        if i == 0 and fs[0] / 2.0 >= lo:
+            evaluate(fs[0] / 2.0)
+        elif i == len(fs) - 1 or nll[-1] <= nll[i] + WALK_PROFILE_RISE:
+            if fs[-1] * 2.0 > hi:
+                break
+            evaluate(fs[-1] * 2.0)
+        else:
+            break
+    level = nll[i] + WALK_PROFILE_RISE
+    above = [j for j in range(i + 1, len(fs)) if nll[j] > level]
+    if not above:
+        chosen = fs[-1]
+    else:
+        j = above[0]
+        a, b = nll[j - 1], nll[j]
+        t = 1.0 if not np.isfinite(b) else (level - a) / (b - a)
+        chosen = fs[j - 1] * (fs[j] / fs[j - 1]) ** t
+    profile = tuple((f, float(v - nll[i])) for f, v in zip(fs, nll))
+    near = [f for f in fs if abs(f / chosen - 1.0) <= 0.03 and evals[f][1] is not None]
+    return chosen, profile, (evals[near[0]][1] if near else None)
+
+
 @dataclass(frozen=True)
 class ReplayRun:
     """A replay's estimator (after the last pass), the evidence of that pass and its
@@ -236,6 +306,42 @@ def replay_run(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrad
     return ReplayRun(est, ledger, ledger.verdict(selfcheck), why)
 
 
+def _profiled(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade | None,
+              config: EstimatorConfig, progress: Callable[[int], None] | None,
+              est: CalibrationEstimator, ledger: RunLedger
+              ) -> tuple[CalibrationEstimator, RunLedger]:
+    """The first pass ``est`` (``ledger``) of a MEMS unit whose gyro walk is the floor:
+    :func:`profile_gyro_walk` from its coarse start (the first pass is its point at the
+    floor), and the pass at the chosen walk (the first pass itself when every profile pass
+    diverged)."""
+    assert est.start is not None
+    start0 = est.start
+
+    def run_pass(f: float) -> tuple[CalibrationEstimator, RunLedger] | None:
+        if f == MEMS_BIAS_WALK[0]:
+            # the first pass ran at the floor from this start: the same pass (its NLL to the
+            # last digit on the grid's MEMS bags)
+            return est, ledger
+        st = dataclasses.replace(start0, gyro_walk_fraction=f)
+        try:
+            return _replay_pass(open_samples(), fixture, grade, config, None, 4000, progress, st)
+        except InputError:  # diverged at this walk: the profile counts it as unlikely
+            return None
+
+    chosen, profile, done = profile_gyro_walk(run_pass, MEMS_BIAS_WALK[0])
+    if not profile:
+        return est, ledger
+    st = dataclasses.replace(start0, gyro_walk_fraction=chosen, gyro_walk_profile=profile)
+    if done is not None:
+        done[0].start = st  # the same walk: only the record of the profile differs
+        return done
+    res = run_pass(chosen)
+    if res is None:
+        return est, ledger
+    res[0].start = st
+    return res
+
+
 def _passes(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade | None,
             config: EstimatorConfig, iterations: int,
             progress: Callable[[int], None] | None, max_passes: int = 0
@@ -249,6 +355,9 @@ def _passes(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade |
     while True:
         est, ledger = _replay_pass(open_samples(), fixture, grade, config, init, 4000,
                                    progress, start)
+        if k == 0 and config.walk_profile and est.start is not None and bias_walk_sources(
+                grade, est.start, config.aiding_gyro_noise_rad_s_rt_hz)[0] == 'MEMS floor':
+            est, ledger = _profiled(open_samples, fixture, grade, config, progress, est, ledger)
         init = est.estimate_state()
         start = est.start
         k += 1

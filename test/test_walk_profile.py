@@ -1,0 +1,117 @@
+"""Issue 11 item 5 for a MEMS unit without a grade: the gyro bias walk chosen by the data.
+
+Real MEMS gyros' in-run walks span a factor 10 around the floor a grade-less run assumes
+(``noise.MEMS_BIAS_WALK``); a plan's stationary windows cannot show a 100 s instability. An
+offline replay compares whole passes at walks a factor 2 apart by their innovations' negative
+log-likelihood and takes the likelihood's one-sided 95 % upper bound
+(``replay.profile_gyro_walk``). First the search on a known likelihood curve, then units
+from the world simulator whose walks lie 4x below and 3x above the floor.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+import yaml
+
+from imu_calib_ros.core.estimator import load_estimator_config
+from imu_calib_ros.core.estimator.noise import LIKELIHOOD_SOURCE, MEMS_BIAS_WALK
+from imu_calib_ros.core.estimator.replay import (WALK_PROFILE_RANGE, WALK_PROFILE_RISE,
+                                                 profile_gyro_walk, replay_run)
+from imu_calib_ros.core.fixture import load_fixture
+from imu_calib_ros.testing.world_cases import compare_calibration, make_case
+from msg_adapters.bag import iter_bag
+
+FLOOR = MEMS_BIAS_WALK[0]
+
+
+class _Pass:
+    def __init__(self, nll: float) -> None:
+        self.nll = nll
+
+    def innovation_nll(self) -> tuple[float, int]:
+        return self.nll, 1000
+
+
+def _passes(nll: Callable[[float], float]) -> tuple[Callable[[float], Any], list[float]]:
+    asked: list[float] = []
+
+    def run_pass(f: float) -> Any:
+        asked.append(f)
+        v = nll(f)
+        return None if math.isinf(v) else (_Pass(v), None)
+    return run_pass, asked
+
+
+def test_the_bound_is_where_the_likelihood_has_fallen_by_the_rise() -> None:
+    # NLL linear in log2 f on either side of a minimum at the floor x 2: the crossing
+    # is exact under the log-linear interpolation
+    best = 2.0 * FLOOR
+    slope = 3.0  # nats per factor 2
+
+    def nll(f: float) -> float:
+        return 100.0 + slope * abs(math.log2(f / best))
+    run_pass, asked = _passes(nll)
+    chosen, profile, done = profile_gyro_walk(run_pass, FLOOR)
+    assert chosen == pytest.approx(best * 2.0 ** (WALK_PROFILE_RISE / slope), rel=1e-9)
+    assert sorted(asked) == pytest.approx([FLOOR / 2, FLOOR, 2 * FLOOR, 4 * FLOOR])
+    assert [f for f, _ in profile] == sorted(asked) and min(d for _, d in profile) == 0.0
+    assert done is None  # no pass at the chosen walk: the caller runs one
+
+
+def test_a_flat_likelihood_towards_small_walks_is_followed_to_the_range_end() -> None:
+    knee = FLOOR / 4.0
+    run_pass, asked = _passes(lambda f: 50.0 + 10.0 * max(0.0, math.log2(f / knee)))
+    chosen, profile, _ = profile_gyro_walk(run_pass, FLOOR)
+    assert min(asked) >= WALK_PROFILE_RANGE[0] and min(asked) < 2 * WALK_PROFILE_RANGE[0]
+    # the least NLL is flat below the knee: the bound is the rise above that plateau
+    assert chosen == pytest.approx(knee * 2.0 ** (WALK_PROFILE_RISE / 10.0), rel=1e-9)
+
+
+def test_a_likelihood_that_never_rises_takes_the_range_top_and_diverged_passes_count_as_unlikely(
+        ) -> None:
+    run_pass, asked = _passes(lambda f: 10.0)
+    chosen, _, done = profile_gyro_walk(run_pass, FLOOR)
+    assert chosen == max(asked) and max(asked) * 2 > WALK_PROFILE_RANGE[1]
+    assert done is not None  # a pass ran at exactly that walk: reused
+    # every pass below 0.01 diverged: the bound comes from the ones that ran
+    run_pass, asked = _passes(lambda f: math.inf if f < 0.01 else 20.0 * math.log2(f / 0.01))
+    chosen, profile, _ = profile_gyro_walk(run_pass, FLOOR)
+    assert 0.011 <= chosen <= 0.022
+    run_pass, _ = _passes(lambda f: math.inf)
+    assert profile_gyro_walk(run_pass, FLOOR) == (FLOOR, (), None)
+
+
+@pytest.mark.parametrize('walk', [FLOOR / 4.0, FLOOR * 3.0])
+def test_the_data_choose_a_walk_on_the_right_side_of_the_floor(tmp_path: Path, walk: float
+                                                              ) -> None:
+    """A consumer unit whose gyro bias is a 100 s Gauss-Markov process of walk ``walk`` x its
+    white noise: the plain replay chooses a walk on the same side of the floor as the truth,
+    says so in the file, and its gyro biases are within 3 sigma (with the floor, the
+    drifting unit's sigmas rest on a walk 3x too small, the stable unit's on one 4x too
+    large)."""
+    n_g = 3e-4
+    tau = 100.0
+    bag, truth = make_case(tmp_path, unit='consumer_mems', seed=4, plan='savage_srt',
+                           unit_noise={'gyro_noise_rad_s_rt_hz': n_g,
+                                       'gyro_bias_instability_rad_s':
+                                           walk * n_g * math.sqrt(tau / 2.0),
+                                       'gyro_bias_correlation_s': tau,
+                                       'gyro_bias_random_walk_rad_s2_rt_hz': 0.0})
+    run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None,
+                     load_estimator_config(None))
+    calib = run.estimator.estimate()
+    bw = calib.extra['estimator']['bias_walk']
+    assert bw['gyro_source'] in (LIKELIHOOD_SOURCE, "raised by the run's data"), bw
+    chosen = bw['gyro_walk_fraction_of_white_noise']
+    assert (chosen < FLOOR) == (walk < FLOOR), (chosen, walk, bw['gyro_walk_profile'])
+    out = tmp_path / 'calib.yaml'
+    calib.save(out)
+    rows = [r for r in compare_calibration(yaml.safe_load(out.read_text()),
+                                           yaml.safe_load(truth.path.read_text()))
+            if r.group == 'gyro_bias']
+    z = np.array([r.z for r in rows])
+    assert np.abs(z).max() < 3.0, [(r.name, r.error, r.sigma) for r in rows]
