@@ -352,11 +352,12 @@ def _passes(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade |
     start: Any = None  # later passes keep the first pass's coarse start (the prior mean)
     why: list[str] = []
     k = 0
+    cfg = config if config is not None else EstimatorConfig()  # the estimator's defaults
     while True:
         est, ledger = _replay_pass(open_samples(), fixture, grade, config, init, 4000,
                                    progress, start)
-        if k == 0 and config.walk_profile and est.start is not None and bias_walk_sources(
-                grade, est.start, config.aiding_gyro_noise_rad_s_rt_hz)[0] == 'MEMS floor':
+        if k == 0 and cfg.walk_profile and est.start is not None and bias_walk_sources(
+                grade, est.start, cfg.aiding_gyro_noise_rad_s_rt_hz)[0] == 'MEMS floor':
             est, ledger = _profiled(open_samples, fixture, grade, config, progress, est, ledger)
         init = est.estimate_state()
         start = est.start
