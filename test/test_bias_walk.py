@@ -199,7 +199,7 @@ def test_the_command_names_the_walk_the_innovations_chose() -> None:
     q = 0.05 * 1.2e-4
     walk = {'gyro_bias_random_walk_rad_s2_rt_hz': q, 'gyro_source': LIKELIHOOD_SOURCE,
             'gyro_instability_covered_rad_s': instability_covered(q * q),
-            'gyro_walk_fraction_of_white_noise': 0.05,
+            'gyro_walk_to_noise_per_s': 0.05,
             'gyro_walk_profile': [[0.011, 3.0], [0.022, 1.0], [0.044, 0.0], [0.088, 2.5]]}
     note = _walk_note(SimpleNamespace(extra={'estimator': {'bias_walk': walk}}))
     assert note is not None, note

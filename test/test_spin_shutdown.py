@@ -21,26 +21,28 @@ from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from imu_calib_ros.nodes.common import SPIN_WAKE_S, spin_until_shutdown  # noqa: E402
+from imu_calib_ros.nodes.common import SPIN_WAKE_S, add_shutdown_wake  # noqa: E402
 
 
-def signal_thread_order(spin: str) -> float | None:
-    """Spin (``'ours'`` or rclpy's ``'spin'``) a sim-time node with a timer that never fires;
-    trigger the SIGINT guard condition, wait, shut the context down as the signal thread does
-    (no Python on_shutdown callbacks, so no wake). Seconds from the shutdown to the end of the
-    spin, or None if it had not ended 3 wake periods later."""
+def signal_thread_order() -> float | None:
+    """Spin a sim-time node with a timer that never fires and run_node's wake; trigger the
+    SIGINT guard condition, wait, shut the context down as the signal thread does (no Python
+    on_shutdown callbacks, so no wake). Seconds from the shutdown to the end of the spin, or
+    None if it had not ended 3 wake periods later. Without the wake the spin does not end
+    (not kept as a test: it would assert rclpy's bug and leave a thread blocked)."""
     ctx = Context()
     rclpy.init(context=ctx, args=[])
     node = rclpy.create_node('spin_shutdown_probe', context=ctx, parameter_overrides=[
         Parameter('use_sim_time', Parameter.Type.BOOL, True)])
     node.create_timer(0.1, lambda: None)  # ROS time: no /clock, never due
+    add_shutdown_wake(node)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     done = threading.Event()
 
     def run() -> None:
         try:
-            spin_until_shutdown(ex) if spin == 'ours' else ex.spin()
+            ex.spin()
         except Exception:  # noqa: BLE001 - ExternalShutdownException: it ended
             pass
         done.set()
@@ -63,10 +65,5 @@ def signal_thread_order(spin: str) -> float | None:
 
 
 def test_the_spin_ends_within_one_wake_period_of_the_shutdown() -> None:
-    elapsed = signal_thread_order('ours')
+    elapsed = signal_thread_order()
     assert elapsed is not None and elapsed <= SPIN_WAKE_S + 0.5, elapsed
-
-
-def test_rclpy_spin_alone_waits_on() -> None:
-    """The failure the bounded wait exists for: without it the spin does not end."""
-    assert signal_thread_order('spin') is None

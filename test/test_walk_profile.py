@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -28,61 +28,67 @@ from msg_adapters.bag import iter_bag
 FLOOR = MEMS_BIAS_WALK[0]
 
 
-class _Pass:
-    def __init__(self, nll: float) -> None:
-        self.nll = nll
-
-    def innovation_nll(self) -> tuple[float, int]:
-        return self.nll, 1000
-
-
-def _passes(nll: Callable[[float], float]) -> tuple[Callable[[float], Any], list[float]]:
+def _curve(nll: Callable[[float], float], updates: Callable[[float], int] = lambda r: 1000
+           ) -> tuple[Callable[[float], tuple[float, int] | None], list[float]]:
+    """A known NLL curve as the passes' results (inf: the pass diverged), and the walks asked."""
     asked: list[float] = []
 
-    def run_pass(f: float) -> Any:
-        asked.append(f)
-        v = nll(f)
-        return None if math.isinf(v) else (_Pass(v), None)
-    return run_pass, asked
+    def nll_at(r: float) -> tuple[float, int] | None:
+        asked.append(r)
+        v = nll(r)
+        return None if math.isinf(v) else (v, updates(r))
+    return nll_at, asked
 
 
-def test_the_bound_is_where_the_likelihood_has_fallen_by_the_rise() -> None:
-    # NLL linear in log2 f on either side of a minimum at the floor x 2: the crossing
-    # is exact under the log-linear interpolation
+def test_the_bound_is_where_the_likelihood_has_risen_by_the_one_sided_quantile() -> None:
+    # NLL linear in log2 r on either side of a minimum at the floor x 2: the crossing is
+    # exact under the log-linear interpolation
+    assert WALK_PROFILE_RISE == pytest.approx(2.7055 / 2.0, rel=1e-4)  # chi2(0.90, 1) / 2
     best = 2.0 * FLOOR
     slope = 3.0  # nats per factor 2
-
-    def nll(f: float) -> float:
-        return 100.0 + slope * abs(math.log2(f / best))
-    run_pass, asked = _passes(nll)
-    chosen, profile, done = profile_gyro_walk(run_pass, FLOOR)
+    nll_at, asked = _curve(lambda r: 100.0 + slope * abs(math.log2(r / best)))
+    chosen, profile = profile_gyro_walk(nll_at, FLOOR)
     assert chosen == pytest.approx(best * 2.0 ** (WALK_PROFILE_RISE / slope), rel=1e-9)
     assert sorted(asked) == pytest.approx([FLOOR / 2, FLOOR, 2 * FLOOR, 4 * FLOOR])
-    assert [f for f, _ in profile] == sorted(asked) and min(d for _, d in profile) == 0.0
-    assert done is None  # no pass at the chosen walk: the caller runs one
+    assert [r for r, _ in profile] == sorted(asked) and min(d for _, d in profile) == 0.0
 
 
 def test_a_flat_likelihood_towards_small_walks_is_followed_to_the_range_end() -> None:
     knee = FLOOR / 4.0
-    run_pass, asked = _passes(lambda f: 50.0 + 10.0 * max(0.0, math.log2(f / knee)))
-    chosen, profile, _ = profile_gyro_walk(run_pass, FLOOR)
+    nll_at, asked = _curve(lambda r: 50.0 + 10.0 * max(0.0, math.log2(r / knee)))
+    chosen, _ = profile_gyro_walk(nll_at, FLOOR)
     assert min(asked) >= WALK_PROFILE_RANGE[0] and min(asked) < 2 * WALK_PROFILE_RANGE[0]
-    # the least NLL is flat below the knee: the bound is the rise above that plateau
+    # equal NLLs below the knee: the largest of them is the most likely, the bound its rise
     assert chosen == pytest.approx(knee * 2.0 ** (WALK_PROFILE_RISE / 10.0), rel=1e-9)
+    # below the walk the stationary windows showed, the passes would be the same: not asked
+    nll_at, asked = _curve(lambda r: 50.0 + 10.0 * max(0.0, math.log2(r / knee)))
+    profile_gyro_walk(nll_at, FLOOR, least=FLOOR / 3.0)
+    assert min(asked) == FLOOR / 2.0
 
 
-def test_a_likelihood_that_never_rises_takes_the_range_top_and_diverged_passes_count_as_unlikely(
-        ) -> None:
-    run_pass, asked = _passes(lambda f: 10.0)
-    chosen, _, done = profile_gyro_walk(run_pass, FLOOR)
+def test_a_likelihood_that_never_rises_takes_the_range_top() -> None:
+    nll_at, asked = _curve(lambda r: 10.0)
+    chosen, _ = profile_gyro_walk(nll_at, FLOOR)
     assert chosen == max(asked) and max(asked) * 2 > WALK_PROFILE_RANGE[1]
-    assert done is not None  # a pass ran at exactly that walk: reused
+
+
+def test_passes_that_diverged_or_lost_updates_count_as_unlikely() -> None:
     # every pass below 0.01 diverged: the bound comes from the ones that ran
-    run_pass, asked = _passes(lambda f: math.inf if f < 0.01 else 20.0 * math.log2(f / 0.01))
-    chosen, profile, _ = profile_gyro_walk(run_pass, FLOOR)
+    nll_at, _ = _curve(lambda r: math.inf if r < 0.01 else 20.0 * math.log2(r / 0.01))
+    chosen, _ = profile_gyro_walk(nll_at, FLOOR)
     assert 0.011 <= chosen <= 0.022
-    run_pass, _ = _passes(lambda f: math.inf)
-    assert profile_gyro_walk(run_pass, FLOOR) == (FLOOR, (), None)
+    # the pass above the most likely diverged: the largest walk that ran, not the diverged one
+    nll_at, _ = _curve(lambda r: math.inf if r > 0.03 else 100.0 - math.log2(r))
+    chosen, profile = profile_gyro_walk(nll_at, FLOOR)
+    assert chosen == FLOOR and math.isinf(profile[-1][1])
+    # a small walk that re-aligned (fewer updates, fewer NLL terms, a smaller sum) is not
+    # the most likely
+    nll_at, _ = _curve(lambda r: 40.0 if r < FLOOR else 100.0 + 10 * math.log2(r / FLOOR),
+                       updates=lambda r: 900 if r < FLOOR else 1000)
+    chosen, _ = profile_gyro_walk(nll_at, FLOOR)
+    assert chosen == pytest.approx(FLOOR * 2.0 ** (WALK_PROFILE_RISE / 10.0), rel=1e-9)
+    nll_at, _ = _curve(lambda r: math.inf)
+    assert profile_gyro_walk(nll_at, FLOOR) == (FLOOR, ())
 
 
 @pytest.mark.parametrize('walk', [FLOOR / 4.0, FLOOR * 3.0])
@@ -106,7 +112,7 @@ def test_the_data_choose_a_walk_on_the_right_side_of_the_floor(tmp_path: Path, w
     calib = run.estimator.estimate()
     bw = calib.extra['estimator']['bias_walk']
     assert bw['gyro_source'] in (LIKELIHOOD_SOURCE, "raised by the run's data"), bw
-    chosen = bw['gyro_walk_fraction_of_white_noise']
+    chosen = bw['gyro_walk_to_noise_per_s']
     assert (chosen < FLOOR) == (walk < FLOOR), (chosen, walk, bw['gyro_walk_profile'])
     out = tmp_path / 'calib.yaml'
     calib.save(out)

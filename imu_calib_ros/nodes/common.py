@@ -450,23 +450,25 @@ def log_at_exit(node: Node, message: str) -> None:
 
 
 
-# the longest an executor waits before it looks at its context again (see spin_until_shutdown)
+# the longest a node's executor waits before it looks at its context again (add_shutdown_wake)
 SPIN_WAKE_S = 1.0
 
 
-def spin_until_shutdown(executor: Any, wake_s: float = SPIN_WAKE_S) -> None:
-    """``executor.spin()``, but no wait longer than ``wake_s`` before the context is checked.
+def add_shutdown_wake(node: Node, period_s: float = SPIN_WAKE_S) -> Any:
+    """A steady-clock timer on ``node`` that does nothing but end every executor wait within
+    ``period_s``: the executor checks its context after each wait, so the spin ends at most
+    ``period_s`` after a shutdown.
 
     rclpy's signal thread triggers the executors' SIGINT guard condition *before* it shuts the
     contexts down. An executor woken in between sees its context still valid and waits again,
     with no timeout; if nothing else wakes it (``use_sim_time`` with the ``/clock`` publisher
-    gone stops every timer), the node ignores SIGINT until it is killed. Seen once in CI: the
-    calibration node in test_nodes_selfcheck.py, stack dump in ``rcl_wait``, killed after
-    120 s. A bounded wait ends the spin at most ``wake_s`` after the shutdown.
+    gone stops every ROS-time timer), the node ignores SIGINT until it is killed. Seen once in
+    CI: the calibration node in test_nodes_selfcheck.py, its stack in ``rcl_wait``, killed
+    after 120 s. A timer rather than ``spin_once(timeout_sec)``, which builds a timeout timer
+    for every wait (once per callback batch at IMU rates).
     """
-    context = executor.context
-    while context.ok():
-        executor.spin_once(timeout_sec=wake_s)
+    from rclpy.clock import Clock, ClockType
+    return node.create_timer(period_s, lambda: None, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
@@ -503,8 +505,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         from rclpy.executors import SingleThreadedExecutor
         ex = SingleThreadedExecutor()
         ex.add_node(node)
+        add_shutdown_wake(node)
         try:
-            spin_until_shutdown(ex)
+            ex.spin()
         finally:
             ex.shutdown()
     except (KeyboardInterrupt, ExternalShutdownException):

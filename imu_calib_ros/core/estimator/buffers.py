@@ -357,10 +357,9 @@ _SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
 def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
     """Each joint's encoder noise [rad] from samples ``q_rad`` (n, joints): the scatter of the
     second differences (a constant rate cancels, and a constant acceleration with the median
-    taken off), 1.4826 MAD over sqrt(6); steps across the +-pi wrap are ignored. The one
-    estimate behind the alignment's motion bridges and the encoder-rate weight."""
-    d2 = np.diff(np.asarray(q_rad, float), n=2, axis=0)
-    d2 = np.where(np.abs(d2) > np.pi, 0.0, d2)  # wrapped at +-pi
+    taken off), 1.4826 MAD over sqrt(6), of the angles unwrapped (a continuous joint reported
+    in +-pi). The one estimate behind the alignment's motion bridges and the encoder-rate
+    weight."""
+    d2 = np.diff(np.unwrap(np.asarray(q_rad, float), axis=0), n=2, axis=0)
     mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
     return 1.4826 * mad / _SECOND_DIFFERENCE_GAIN
-

@@ -133,10 +133,11 @@ class CoarseStart:
     #: their sigmas (n,) [rad]; inf where gravity does not show a zero (the last joint's is
     #: the mounting, a vertical one's a heading)
     joint_zero_sigma_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
-    #: a MEMS unit without a grade: its gyro bias walk as a fraction of its white-noise
-    #: density, chosen by the innovations' likelihood over whole passes
-    #: (:func:`.replay.profile_gyro_walk`); 0 before that (the MEMS floor is assumed)
-    gyro_walk_fraction: float = 0.0
+    #: a MEMS unit without a grade: its gyro bias walk density over its white-noise density
+    #: [1/s], chosen by the innovations' likelihood over whole passes (an offline replay's
+    #: decision carried to the later passes with the start: :func:`.replay.profile_gyro_walk`);
+    #: 0 before that (the MEMS floor is assumed)
+    gyro_walk_to_noise_per_s: float = 0.0
     #: the profile behind it: ``((fraction, NLL - least NLL), ...)``
     gyro_walk_profile: tuple[tuple[float, float], ...] = ()
 

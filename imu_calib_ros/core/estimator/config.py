@@ -121,7 +121,7 @@ class EstimatorConfig:
         'above this (the gyros cannot hold attitude over a plan)', 0.0)
     walk_profile: bool = setting(True, 'offline replay of a MEMS unit without a grade: its gyro '
                                  'bias walk chosen by the innovations\' likelihood over whole '
-                                 'passes (3-6 more passes), not the assumed floor')
+                                 'passes (2-7 more passes, typically 4), not the assumed floor')
     max_restarts: int = setting(3, 'a diverged filter restarts from the coarse start with '
                                 'inflated covariance this many times before giving up', 0, 100)
     settle_s: float = setting(30.0, 'after a re-alignment or restart (the filter left its linear '

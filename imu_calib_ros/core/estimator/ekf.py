@@ -162,7 +162,8 @@ class GateCounters:
     innov_sq: dict[str, FloatArray] = field(default_factory=dict)
     # every update with a positive definite S: the innovations' negative log-likelihood
     # 0.5 (min(NIS, gate) + log det S + m log 2 pi) (a gated one counts at the gate: one
-    # outlier must not choose a noise model), and how many updates it sums
+    # outlier must not choose a noise model), and how many updates it sums (runs that sum
+    # different numbers of terms are not compared: replay.profile_gyro_walk)
     nll_sum: float = 0.0
     nll_updates: int = 0
 
@@ -251,7 +252,7 @@ class ErrorStateFilter:
             # log det S from the Cholesky factor's diagonal (scaled units: the same offset
             # for every run of one layout)
             c.nll_sum += 0.5 * (min(nis, gate) + len(z) * _LOG_2PI
-                                + 2.0 * math.log(float(chol.diagonal().prod())))
+                                + 2.0 * float(np.log(chol.diagonal()).sum()))
             c.nll_updates += 1
         else:
             nis = np.inf

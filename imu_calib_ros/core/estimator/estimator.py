@@ -989,7 +989,7 @@ class CalibrationEstimator:
         st = self.start
         if st is not None and st.gyro_walk_profile:
             # the replay's profile (replay.profile_gyro_walk): walk / white noise -> NLL rise
-            out['gyro_walk_fraction_of_white_noise'] = float(st.gyro_walk_fraction)
+            out['gyro_walk_to_noise_per_s'] = float(st.gyro_walk_to_noise_per_s)
             out['gyro_walk_profile'] = [[float(f), float(d)] for f, d in st.gyro_walk_profile]
         return out
 

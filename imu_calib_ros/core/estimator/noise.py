@@ -35,7 +35,8 @@ _LOG = logging.getLogger('imu_calib_ros.estimator')
 # of the stationary windows (RunLedger.bias_walk) raises it for the drifting ones. On the
 # robustness grid's 32 MEMS runs, 0.035 gave gyro-bias sigmas 2.2x the true noise model's
 # (passed 26/32, 6/1440 beyond 3 sigma), 0.022 passed 30/32 with 8/1440 and 0.015 31/32 with
-# 10/1440 against 3.9 for an honest filter: 0.022 is the lowest that stays honest. A
+# 10/1440 against 3.9 for an honest filter: 0.022 is the lowest fixed value that stays honest
+# (a live run's; offline, replay.profile_gyro_walk lets the innovations choose the gyro's). A
 # navigation gyro's is ~1e-4 and this floor would cost its bias accuracy), accelerometer
 # 0.035 for MEMS (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035; consumer parts
 # 0.014-0.09: with 0.015 a world consumer unit's 80 ug over 100 s left its accelerometer
@@ -44,7 +45,9 @@ _LOG = logging.getLogger('imu_calib_ros.estimator')
 # the stationary windows cannot resolve, but that left a 0.6 ug sigma 5 sigma off on a
 # 30-min world run).
 MEMS_BIAS_WALK = (0.022, 0.035)
-#: the gyro walk's source when a replay chose it (:func:`.replay.profile_gyro_walk`)
+#: the walks' source when a MEMS floor sets them, and the gyro's when a replay chose it
+#: (:func:`.replay.profile_gyro_walk`)
+MEMS_FLOOR_SOURCE = 'MEMS floor'
 LIKELIHOOD_SOURCE = 'innovation likelihood'
 ACCEL_BIAS_WALK = 0.015  # the accelerometer's, any class without a grade
 
@@ -118,7 +121,9 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
     ``replay.walk_grown``), and without a grade the
     floors: ``accelerometer floor`` (:data:`ACCEL_BIAS_WALK`, any class) and ``MEMS floor``
     (:data:`MEMS_BIAS_WALK`, a unit whose gyro noise is above ``mems_gyro_noise_rad_s_rt_hz``:
-    the stationary windows of a short plan cannot show a 100 s instability)."""
+    the stationary windows of a short plan cannot show a 100 s instability); for that unit's
+    gyro, once an offline replay has profiled it, ``innovation likelihood`` instead of the
+    floor (``start.gyro_walk_to_noise_per_s``, :func:`.replay.profile_gyro_walk`)."""
     g: dict[str, float] = {}
     a: dict[str, float] = {}
     if grade is not None:
@@ -132,12 +137,14 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
             a['accelerometer floor'] = (ACCEL_BIAS_WALK * st.accel_noise_m_s2_rt_hz) ** 2
         if grade is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
             # a MEMS unit and no grade: nor its gyro biases, and more of both; the gyro's
-            # chosen by the run's innovations once a replay has profiled it
-            if st.gyro_walk_fraction > 0.0:
-                g[LIKELIHOOD_SOURCE] = (st.gyro_walk_fraction * st.gyro_noise_rad_s_rt_hz) ** 2
+            # chosen by the run's innovations once a replay has profiled it (it may then be
+            # below the floor: the data showed the unit steadier)
+            if st.gyro_walk_to_noise_per_s > 0.0:
+                g[LIKELIHOOD_SOURCE] = (st.gyro_walk_to_noise_per_s
+                                        * st.gyro_noise_rad_s_rt_hz) ** 2
             else:
-                g['MEMS floor'] = (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2
-            a['MEMS floor'] = (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2
+                g[MEMS_FLOOR_SOURCE] = (MEMS_BIAS_WALK[0] * st.gyro_noise_rad_s_rt_hz) ** 2
+            a[MEMS_FLOOR_SOURCE] = (MEMS_BIAS_WALK[1] * st.accel_noise_m_s2_rt_hz) ** 2
     return g, a
 
 
@@ -145,7 +152,8 @@ def bias_random_walk(grade: ImuGrade | None, start: CoarseStart | None,
                      mems_gyro_noise_rad_s_rt_hz: float) -> tuple[float, float]:
     """Spectral densities of the gyro and accelerometer bias random walk ``(q_g, q_a)``
     [(rad/s)^2/s, (m/s^2)^2/s]: the largest of :func:`bias_walk_terms` (the grade's, at least
-    the walk the coarse start measured, at least the floors of a unit without a grade)."""
+    the walk the coarse start measured, at least the floors of a unit without a grade, or for
+    its gyro the walk a replay's profile chose)."""
     g, a = bias_walk_terms(grade, start, mems_gyro_noise_rad_s_rt_hz)
     return max(g.values(), default=0.0), max(a.values(), default=0.0)
 
@@ -184,11 +192,11 @@ def assumed_walk_note(extra: Mapping[str, Any], grade_option: str = '--imu') -> 
     if walk.get('gyro_source') == LIKELIHOOD_SOURCE:
         return (f'no IMU grade: the gyro bias walk is the one the run\'s innovations allow '
                 f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} '
-                f'deg/h/sqrt(h), {walk["gyro_walk_fraction_of_white_noise"]:.2g} of the white '
+                f'deg/h/sqrt(h), {walk["gyro_walk_to_noise_per_s"]:.2g} of the white '
                 f'noise: the likelihood\'s one-sided 95 % upper bound over '
                 f'{len(walk.get("gyro_walk_profile", ()))} passes), an in-run bias instability '
                 f'up to {walk["gyro_instability_covered_rad_s"] * deg_h:.2g} deg/h (over 100 s)')
-    if walk.get('gyro_source') != 'MEMS floor':
+    if walk.get('gyro_source') != MEMS_FLOOR_SOURCE:
         return None
     return (f'no IMU grade, and the stationary windows showed no gyro bias drift: the gyro-bias '
             f'sigmas assume the MEMS floor '

@@ -23,7 +23,8 @@ from ..errors import InputError
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from .config import EstimatorConfig
 from .estimator import CalibrationEstimator, Estimate
-from .noise import MEMS_BIAS_WALK, bias_walk_sources
+from .noise import MEMS_BIAS_WALK, MEMS_FLOOR_SOURCE, bias_walk_sources
+from .quantiles import chi2_ppf
 from .run_ledger import RunLedger
 from .selfcheck import SelfCheckConfig, Verdict
 
@@ -138,53 +139,61 @@ def walk_grown(est: CalibrationEstimator) -> tuple[str, Any]:
             dataclasses.replace(st, **grown))
 
 
-#: the gyro walk profile's range, as fractions of the white-noise density per sqrt(s) (real
+#: the least gyro walk the profile tries, as walk density / white-noise density [1/s] (real
 #: MEMS parts span 0.006-0.06, noise.MEMS_BIAS_WALK); it steps by factors of 2 from the floor
 WALK_PROFILE_RANGE = (0.002, 0.2)
-#: the walk chosen is the likelihood's one-sided 95 % upper bound: the fraction above the
-#: most likely one where the NLL has risen by chi2(0.90, 1) / 2
-WALK_PROFILE_RISE = 1.35
+#: the walk chosen is the likelihood's one-sided 95 % upper bound: above the most likely walk,
+#: where the NLL has risen by chi2(0.90, 1) / 2 = 1.35
+WALK_PROFILE_RISE = chi2_ppf(0.90, 1) / 2.0
+#: a pass with fewer updates than the most of any pass (by this fraction) re-aligned or
+#: restarted at its walk: its NLL sums fewer terms and is not comparable; it counts as unlikely
+WALK_PROFILE_UPDATES_LOST = 1e-3
 
 
-def profile_gyro_walk(run_pass: Callable[[float], tuple[CalibrationEstimator, RunLedger] | None],
-                      floor: float) -> tuple[float, tuple[tuple[float, float], ...],
-                                             tuple[CalibrationEstimator, RunLedger] | None]:
+def profile_gyro_walk(nll_at: Callable[[float], tuple[float, int] | None], floor: float,
+                      least: float = WALK_PROFILE_RANGE[0]
+                      ) -> tuple[float, tuple[tuple[float, float], ...]]:
     """Issue 11 item 5 for a MEMS unit without a grade: its gyro bias walk chosen by the data.
 
     A plan's stationary windows cannot show a 100 s instability, and real parts' walks span
     a factor 10 around the floor :data:`.noise.MEMS_BIAS_WALK` assumes: a unit better than the
     floor got gyro-bias sigmas twice its noise limit, a worse one sigmas too small (the arm's
     MEMS unit, 0.056 of its noise density against the floor's 0.022). The whole run's
-    innovations decide: ``run_pass(fraction)`` replays from the coarse start with the walk
-    at ``fraction`` x the white-noise density and returns its estimator (None if it diverged);
-    their negative log-likelihoods (:meth:`~.estimator.CalibrationEstimator.innovation_nll`)
-    are compared at factors of 2 from ``floor`` until the least is bracketed and the NLL has
-    risen by :data:`WALK_PROFILE_RISE` above it (within :data:`WALK_PROFILE_RANGE`). The
-    fraction chosen is where it crosses that rise above the most likely one (log-linear
-    between the two passes around it), the one-sided 95 % upper bound: the likelihood is
-    flat towards small walks, and its maximum alone fell 2-4x below the truth on some of the
-    grid's MEMS runs (gyro-bias z up to 3.1); the bound found the arm unit's 0.056 at 0.052.
+    innovations decide: ``nll_at(r)`` replays from the coarse start with the walk at ``r`` x
+    the white-noise density and returns its innovations' negative log-likelihood and update
+    count (:meth:`~.estimator.CalibrationEstimator.innovation_nll`; None if it diverged). They
+    are compared at factors of 2 from ``floor`` (no lower than ``least``, e.g. the walk the
+    stationary windows showed, below which the passes are the same) until the least NLL is
+    bracketed and the NLL has risen by :data:`WALK_PROFILE_RISE` above it (within
+    :data:`WALK_PROFILE_RANGE`). The walk chosen is where it crosses that rise above the most
+    likely one (log-linear between the two passes around it), the one-sided 95 % upper bound:
+    the likelihood is flat towards small walks, and its maximum alone fell 2-4x below the
+    truth on some of the grid's MEMS runs (gyro-bias z up to 3.1); the bound found the arm
+    unit's 0.056 at 0.052. A diverged pass, or one with fewer updates than the others
+    (:data:`WALK_PROFILE_UPDATES_LOST`), counts as infinitely unlikely; of equal NLLs the
+    largest walk is the most likely (the passes below it were the same pass).
 
-    Returns ``(fraction, profile, pass)``: ``profile`` is ``((fraction, NLL - least), ...)``
-    in fraction order, ``pass`` the estimator and ledger of a profile pass at the chosen
-    fraction when one was (within 3 %), else None; ``(floor, (), None)`` when every pass
-    diverged.
+    Returns ``(walk ratio, profile)``: ``profile`` is ``((ratio, NLL - least NLL), ...)`` in
+    ratio order; ``(floor, ())`` when no pass could be compared.
     """
-    lo, hi = WALK_PROFILE_RANGE
-    evals: dict[float, tuple[float, tuple[CalibrationEstimator, RunLedger] | None]] = {}
+    lo = max(least, WALK_PROFILE_RANGE[0])
+    hi = WALK_PROFILE_RANGE[1]
+    evals: dict[float, tuple[float, int]] = {}
 
-    def evaluate(f: float) -> None:
-        res = run_pass(f)
-        evals[f] = ((res[0].innovation_nll()[0] if res is not None else math.inf), res)
+    def evaluate(r: float) -> None:
+        evals[r] = nll_at(r) or (math.inf, 0)
 
-    for f in (floor / 2.0, floor, 2.0 * floor):
-        evaluate(f)
+    for r in (floor / 2.0, floor, 2.0 * floor):
+        if r >= lo or r == floor:
+            evaluate(r)
     while True:
         fs = sorted(evals)
-        nll = np.array([evals[f][0] for f in fs])
+        most = max(n for _, n in evals.values())
+        nll = np.array([v if n >= most * (1.0 - WALK_PROFILE_UPDATES_LOST) else math.inf
+                        for v, n in (evals[r] for r in fs)])
         if not np.isfinite(nll).any():
-            return floor, (), None
-        i = int(np.argmin(nll))
+            return floor, ()
+        i = int(np.flatnonzero(nll <= nll.min() + 1e-9)[-1])  # ties: the largest walk
         if i == 0 and fs[0] / 2.0 >= lo:
             evaluate(fs[0] / 2.0)
         elif i == len(fs) - 1 or nll[-1] <= nll[i] + WALK_PROFILE_RISE:
@@ -197,14 +206,13 @@ def profile_gyro_walk(run_pass: Callable[[float], tuple[CalibrationEstimator, Ru
     above = [j for j in range(i + 1, len(fs)) if nll[j] > level]
     if not above:
         chosen = fs[-1]
+    elif not np.isfinite(nll[above[0]]):
+        chosen = fs[above[0] - 1]  # the largest walk that ran: no crossing to interpolate to
     else:
         j = above[0]
-        a, b = nll[j - 1], nll[j]
-        t = 1.0 if not np.isfinite(b) else (level - a) / (b - a)
+        t = (level - nll[j - 1]) / (nll[j] - nll[j - 1])
         chosen = fs[j - 1] * (fs[j] / fs[j - 1]) ** t
-    profile = tuple((f, float(v - nll[i])) for f, v in zip(fs, nll))
-    near = [f for f in fs if abs(f / chosen - 1.0) <= 0.03 and evals[f][1] is not None]
-    return chosen, profile, (evals[near[0]][1] if near else None)
+    return chosen, tuple((r, float(v - nll[i])) for r, v in zip(fs, nll))
 
 
 @dataclass(frozen=True)
@@ -312,33 +320,37 @@ def _profiled(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade
               ) -> tuple[CalibrationEstimator, RunLedger]:
     """The first pass ``est`` (``ledger``) of a MEMS unit whose gyro walk is the floor:
     :func:`profile_gyro_walk` from its coarse start (the first pass is its point at the
-    floor), and the pass at the chosen walk (the first pass itself when every profile pass
-    diverged)."""
+    floor), and the pass at the chosen walk (the first pass itself when the floor is chosen
+    or no other pass could be compared). Only the NLLs of the profile's passes are kept."""
     assert est.start is not None
     start0 = est.start
+    floor = MEMS_BIAS_WALK[0]
 
-    def run_pass(f: float) -> tuple[CalibrationEstimator, RunLedger] | None:
-        if f == MEMS_BIAS_WALK[0]:
-            # the first pass ran at the floor from this start: the same pass (its NLL to the
-            # last digit on the grid's MEMS bags)
-            return est, ledger
-        st = dataclasses.replace(start0, gyro_walk_fraction=f)
+    def run_pass(r: float) -> tuple[CalibrationEstimator, RunLedger] | None:
+        st = dataclasses.replace(start0, gyro_walk_to_noise_per_s=r)
         try:
             return _replay_pass(open_samples(), fixture, grade, config, None, 4000, progress, st)
         except InputError:  # diverged at this walk: the profile counts it as unlikely
             return None
 
-    chosen, profile, done = profile_gyro_walk(run_pass, MEMS_BIAS_WALK[0])
+    def nll_at(r: float) -> tuple[float, int] | None:
+        if r == floor:
+            # the first pass ran at the floor from this start: the same pass (its NLL to the
+            # last digit on the grid's MEMS bags)
+            return est.innovation_nll()
+        res = run_pass(r)
+        return None if res is None else res[0].innovation_nll()
+
+    n_g = start0.gyro_noise_rad_s_rt_hz
+    windows = start0.gyro_bias_random_walk_rad_s2_rt_hz / n_g if n_g > 0 else 0.0
+    chosen, profile = profile_gyro_walk(nll_at, floor, windows)
     if not profile:
         return est, ledger
-    st = dataclasses.replace(start0, gyro_walk_fraction=chosen, gyro_walk_profile=profile)
-    if done is not None:
-        done[0].start = st  # the same walk: only the record of the profile differs
-        return done
-    res = run_pass(chosen)
+    st = dataclasses.replace(start0, gyro_walk_to_noise_per_s=chosen, gyro_walk_profile=profile)
+    res = (est, ledger) if chosen == floor else run_pass(chosen)
     if res is None:
         return est, ledger
-    res[0].start = st
+    res[0].start = st  # the walk it ran with, and the profile that chose it
     return res
 
 
@@ -357,7 +369,7 @@ def _passes(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade |
         est, ledger = _replay_pass(open_samples(), fixture, grade, config, init, 4000,
                                    progress, start)
         if k == 0 and cfg.walk_profile and est.start is not None and bias_walk_sources(
-                grade, est.start, cfg.aiding_gyro_noise_rad_s_rt_hz)[0] == 'MEMS floor':
+                grade, est.start, cfg.aiding_gyro_noise_rad_s_rt_hz)[0] == MEMS_FLOOR_SOURCE:
             est, ledger = _profiled(open_samples, fixture, grade, config, progress, est, ledger)
         init = est.estimate_state()
         start = est.start
