@@ -189,19 +189,30 @@ def test_the_command_names_the_instability_an_assumed_mems_walk_covers() -> None
 
 
 def test_the_command_names_the_walk_the_innovations_chose() -> None:
-    """After a replay's walk profile the note gives the chosen walk, its fraction of the white
-    noise and the passes it compared: 0.05 x 1.2e-4 = 6e-6 rad/s/sqrt(s) = 74 deg/h/sqrt(h),
-    covering 6e-6 sqrt(50) = 4.24e-5 rad/s = 8.8 deg/h over 100 s."""
+    """After a replay's walk profile the note gives the walk, the likelihood's bound and the
+    passes it compared: raised to 0.05 x 1.2e-4 = 6e-6 rad/s/sqrt(s) = 74 deg/h/sqrt(h),
+    covering 6e-6 sqrt(50) = 4.24e-5 rad/s = 8.8 deg/h over 100 s; or the floor kept, when
+    the bound is below it, said so without the advice to give a grade."""
     from types import SimpleNamespace
 
     from imu_calib_ros.cli.replay import _walk_note
-    from imu_calib_ros.core.estimator.noise import LIKELIHOOD_SOURCE
+    from imu_calib_ros.core.estimator.noise import LIKELIHOOD_SOURCE, MEMS_FLOOR_SOURCE
+    profile = [[0.011, 3.0], [0.022, 1.0], [0.044, 0.0], [0.088, 2.5]]
     q = 0.05 * 1.2e-4
     walk = {'gyro_bias_random_walk_rad_s2_rt_hz': q, 'gyro_source': LIKELIHOOD_SOURCE,
             'gyro_instability_covered_rad_s': instability_covered(q * q),
-            'gyro_walk_to_noise_per_s': 0.05,
-            'gyro_walk_profile': [[0.011, 3.0], [0.022, 1.0], [0.044, 0.0], [0.088, 2.5]]}
+            'gyro_walk_to_noise_per_s': 0.05, 'gyro_walk_likelihood_bound_per_s': 0.05,
+            'gyro_walk_profile': profile}
     note = _walk_note(SimpleNamespace(extra={'estimator': {'bias_walk': walk}}))
     assert note is not None, note
-    assert '(74 deg/h/sqrt(h), 0.05 of the white noise' in note and 'over 4 passes' in note
-    assert 'up to 8.8 deg/h' in note
+    assert 'raised the gyro bias walk above the MEMS floor to 74 deg/h/sqrt(h)' in note, note
+    assert 'over 4 passes: 0.05 of the white noise' in note and 'up to 8.8 deg/h' in note
+    q = MEMS_BIAS_WALK[0] * 1.2e-4
+    walk = {**walk, 'gyro_bias_random_walk_rad_s2_rt_hz': q, 'gyro_source': MEMS_FLOOR_SOURCE,
+            'gyro_instability_covered_rad_s': instability_covered(q * q),
+            'gyro_walk_to_noise_per_s': MEMS_BIAS_WALK[0],
+            'gyro_walk_likelihood_bound_per_s': 0.012}
+    note = _walk_note(SimpleNamespace(extra={'estimator': {'bias_walk': walk}}))
+    assert note is not None and 'assume the MEMS floor (33 deg/h/sqrt(h)' in note, note
+    assert 'ask for no more' in note and '0.012 of the white noise' in note, note
+    assert '--imu' not in note

@@ -4,8 +4,9 @@ Real MEMS gyros' in-run walks span a factor 10 around the floor a grade-less run
 (``noise.MEMS_BIAS_WALK``); a plan's stationary windows cannot show a 100 s instability. An
 offline replay compares whole passes at walks a factor 2 apart by their innovations' negative
 log-likelihood and takes the likelihood's one-sided 95 % upper bound
-(``replay.profile_gyro_walk``). First the search on a known likelihood curve, then units
-from the world simulator whose walks lie 4x below and 3x above the floor.
+(``replay.profile_gyro_walk``), when that is above the floor. First the search on known
+likelihood curves, then units from the world simulator whose walks lie 4x below and 3x above
+the floor.
 """
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ import pytest
 import yaml
 
 from imu_calib_ros.core.estimator import load_estimator_config
-from imu_calib_ros.core.estimator.noise import LIKELIHOOD_SOURCE, MEMS_BIAS_WALK
+from imu_calib_ros.core.estimator.noise import (LIKELIHOOD_SOURCE, MEMS_BIAS_WALK,
+                                                MEMS_FLOOR_SOURCE)
 from imu_calib_ros.core.estimator.replay import (WALK_PROFILE_RANGE, WALK_PROFILE_RISE,
                                                  profile_gyro_walk, replay_run)
 from imu_calib_ros.core.fixture import load_fixture
@@ -92,13 +94,14 @@ def test_passes_that_diverged_or_lost_updates_count_as_unlikely() -> None:
 
 
 @pytest.mark.parametrize('walk', [FLOOR / 4.0, FLOOR * 3.0])
-def test_the_data_choose_a_walk_on_the_right_side_of_the_floor(tmp_path: Path, walk: float
-                                                              ) -> None:
+def test_the_data_raise_the_walk_of_a_drifting_unit_and_keep_the_floor_for_a_steady_one(
+        tmp_path: Path, walk: float) -> None:
     """A consumer unit whose gyro bias is a 100 s Gauss-Markov process of walk ``walk`` x its
-    white noise: the plain replay chooses a walk on the same side of the floor as the truth,
-    says so in the file, and its gyro biases are within 3 sigma (with the floor, the
-    drifting unit's sigmas rest on a walk 3x too small, the stable unit's on one 4x too
-    large)."""
+    white noise: the likelihood's bound falls on the same side of the floor as the truth; the
+    drifting unit's walk is raised to it, the steady unit keeps the floor (never lowered:
+    a random walk's likelihood under-rates a Gauss-Markov instability), the file says which,
+    and the gyro biases are within 3 sigma (with the floor alone, the drifting unit's sigmas
+    rest on a walk 3x too small)."""
     n_g = 3e-4
     tau = 100.0
     bag, truth = make_case(tmp_path, unit='consumer_mems', seed=4, plan='savage_srt',
@@ -111,9 +114,14 @@ def test_the_data_choose_a_walk_on_the_right_side_of_the_floor(tmp_path: Path, w
                      load_estimator_config(None))
     calib = run.estimator.estimate()
     bw = calib.extra['estimator']['bias_walk']
-    assert bw['gyro_source'] in (LIKELIHOOD_SOURCE, "raised by the run's data"), bw
-    chosen = bw['gyro_walk_to_noise_per_s']
-    assert (chosen < FLOOR) == (walk < FLOOR), (chosen, walk, bw['gyro_walk_profile'])
+    bound = bw['gyro_walk_likelihood_bound_per_s']
+    assert (bound < FLOOR) == (walk < FLOOR), (bound, walk, bw['gyro_walk_profile'])
+    if walk > FLOOR:
+        assert bw['gyro_source'] in (LIKELIHOOD_SOURCE, "raised by the run's data"), bw
+        assert bw['gyro_walk_to_noise_per_s'] == bound
+    else:
+        assert bw['gyro_source'] in (MEMS_FLOOR_SOURCE, "raised by the run's data"), bw
+        assert bw['gyro_walk_to_noise_per_s'] == FLOOR
     out = tmp_path / 'calib.yaml'
     calib.save(out)
     rows = [r for r in compare_calibration(yaml.safe_load(out.read_text()),

@@ -134,11 +134,14 @@ class CoarseStart:
     #: the mounting, a vertical one's a heading)
     joint_zero_sigma_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
     #: a MEMS unit without a grade: its gyro bias walk density over its white-noise density
-    #: [1/s], chosen by the innovations' likelihood over whole passes (an offline replay's
-    #: decision carried to the later passes with the start: :func:`.replay.profile_gyro_walk`);
-    #: 0 before that (the MEMS floor is assumed)
+    #: [1/s] when the innovations' likelihood over whole passes raised it above the floor (an
+    #: offline replay's decision carried to the later passes with the start:
+    #: :func:`.replay.profile_gyro_walk`; its profile passes also run below the floor); 0:
+    #: the MEMS floor
     gyro_walk_to_noise_per_s: float = 0.0
-    #: the profile behind it: ``((fraction, NLL - least NLL), ...)``
+    #: the profile behind it: its one-sided 95 % upper bound [1/s] (below the floor too) and
+    #: ``((ratio, NLL - least NLL), ...)``
+    gyro_walk_bound_per_s: float = 0.0
     gyro_walk_profile: tuple[tuple[float, float], ...] = ()
 
     def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT

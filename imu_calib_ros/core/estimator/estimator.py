@@ -989,7 +989,9 @@ class CalibrationEstimator:
         st = self.start
         if st is not None and st.gyro_walk_profile:
             # the replay's profile (replay.profile_gyro_walk): walk / white noise -> NLL rise
-            out['gyro_walk_to_noise_per_s'] = float(st.gyro_walk_to_noise_per_s)
+            out['gyro_walk_to_noise_per_s'] = float(st.gyro_walk_to_noise_per_s
+                                                    or MEMS_BIAS_WALK[0])
+            out['gyro_walk_likelihood_bound_per_s'] = float(st.gyro_walk_bound_per_s)
             out['gyro_walk_profile'] = [[float(f), float(d)] for f, d in st.gyro_walk_profile]
         return out
 

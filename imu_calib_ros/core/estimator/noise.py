@@ -139,7 +139,7 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
             # a MEMS unit and no grade: nor its gyro biases, and more of both; the gyro's
             # chosen by the run's innovations once a replay has profiled it (it may then be
             # below the floor: the data showed the unit steadier)
-            if st.gyro_walk_to_noise_per_s > 0.0:
+            if st.gyro_walk_to_noise_per_s > 0.0:  # a profile pass may run below the floor
                 g[LIKELIHOOD_SOURCE] = (st.gyro_walk_to_noise_per_s
                                         * st.gyro_noise_rad_s_rt_hz) ** 2
             else:
@@ -189,22 +189,25 @@ def assumed_walk_note(extra: Mapping[str, Any], grade_option: str = '--imu') -> 
     ``imu_grade``)."""
     walk = (extra.get('estimator') or {}).get('bias_walk') or {}
     deg_h = math.degrees(1.0) * 3600.0
+    density = f'{walk.get("gyro_bias_random_walk_rad_s2_rt_hz", 0.0) * deg_h * 60.0:.2g}'
+    covered = f'{walk.get("gyro_instability_covered_rad_s", 0.0) * deg_h:.2g} deg/h (over 100 s)'
+    passes = len(walk.get('gyro_walk_profile', ()))
+    bound = (f'the likelihood\'s one-sided 95 % upper bound over {passes} passes: '
+             f'{walk.get("gyro_walk_likelihood_bound_per_s", 0.0):.2g} of the white noise')
     if walk.get('gyro_source') == LIKELIHOOD_SOURCE:
-        return (f'no IMU grade: the gyro bias walk is the one the run\'s innovations allow '
-                f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} '
-                f'deg/h/sqrt(h), {walk["gyro_walk_to_noise_per_s"]:.2g} of the white '
-                f'noise: the likelihood\'s one-sided 95 % upper bound over '
-                f'{len(walk.get("gyro_walk_profile", ()))} passes), an in-run bias instability '
-                f'up to {walk["gyro_instability_covered_rad_s"] * deg_h:.2g} deg/h (over 100 s)')
+        return (f'no IMU grade: the run\'s innovations raised the gyro bias walk above the '
+                f'MEMS floor to {density} deg/h/sqrt(h) ({bound}), an in-run bias '
+                f'instability up to {covered}')
     if walk.get('gyro_source') != MEMS_FLOOR_SOURCE:
         return None
+    if passes:
+        return (f'no IMU grade: the gyro-bias sigmas assume the MEMS floor ({density} '
+                f'deg/h/sqrt(h), an in-run bias instability up to {covered}), and the run\'s '
+                f'innovations ask for no more ({bound})')
     return (f'no IMU grade, and the stationary windows showed no gyro bias drift: the gyro-bias '
-            f'sigmas assume the MEMS floor '
-            f'({walk["gyro_bias_random_walk_rad_s2_rt_hz"] * deg_h * 60.0:.2g} deg/h/sqrt(h)), '
-            f'enough for an in-run bias instability up to '
-            f'{walk["gyro_instability_covered_rad_s"] * deg_h:.2g} deg/h (over 100 s); for a '
-            f'less stable unit give {grade_option} with its datasheet\'s instability, or record '
-            'a plan that returns to its poses minutes apart')
+            f'sigmas assume the MEMS floor ({density} deg/h/sqrt(h)), enough for an in-run bias '
+            f'instability up to {covered}; for a less stable unit give {grade_option} with its '
+            'datasheet\'s instability, or record a plan that returns to its poses minutes apart')
 
 
 class ProcessNoise:
