@@ -36,7 +36,7 @@ _LOG = logging.getLogger('imu_calib_ros.estimator')
 # robustness grid's 32 MEMS runs, 0.035 gave gyro-bias sigmas 2.2x the true noise model's
 # (passed 26/32, 6/1440 beyond 3 sigma), 0.022 passed 30/32 with 8/1440 and 0.015 31/32 with
 # 10/1440 against 3.9 for an honest filter: 0.022 is the lowest fixed value that stays honest
-# (a live run's; offline, replay.profile_gyro_walk lets the innovations choose the gyro's). A
+# (a live run's; offline, replay.profile_gyro_walk lets the innovations raise the gyro's). A
 # navigation gyro's is ~1e-4 and this floor would cost its bias accuracy), accelerometer
 # 0.035 for MEMS (MTi-1: 30 ug over 100 s at 120 ug/sqrt(Hz) is 0.035; consumer parts
 # 0.014-0.09: with 0.015 a world consumer unit's 80 ug over 100 s left its accelerometer
@@ -137,8 +137,7 @@ def bias_walk_terms(grade: ImuGrade | None, start: CoarseStart | None,
             a['accelerometer floor'] = (ACCEL_BIAS_WALK * st.accel_noise_m_s2_rt_hz) ** 2
         if grade is None and st.gyro_noise_rad_s_rt_hz > mems_gyro_noise_rad_s_rt_hz:
             # a MEMS unit and no grade: nor its gyro biases, and more of both; the gyro's
-            # chosen by the run's innovations once a replay has profiled it (it may then be
-            # below the floor: the data showed the unit steadier)
+            # raised by the run's innovations once a replay has profiled it
             if st.gyro_walk_to_noise_per_s > 0.0:  # a profile pass may run below the floor
                 g[LIKELIHOOD_SOURCE] = (st.gyro_walk_to_noise_per_s
                                         * st.gyro_noise_rad_s_rt_hz) ** 2

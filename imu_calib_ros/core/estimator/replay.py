@@ -156,9 +156,10 @@ def profile_gyro_walk(nll_at: Callable[[float], tuple[float, int] | None], floor
     """Issue 11 item 5 for a MEMS unit without a grade: its gyro bias walk chosen by the data.
 
     A plan's stationary windows cannot show a 100 s instability, and real parts' walks span
-    a factor 10 around the floor :data:`.noise.MEMS_BIAS_WALK` assumes: a unit better than the
-    floor got gyro-bias sigmas twice its noise limit, a worse one sigmas too small (the arm's
-    MEMS unit, 0.056 of its noise density against the floor's 0.022). The whole run's
+    a factor 10 around the floor :data:`.noise.MEMS_BIAS_WALK` assumes: a unit worse than the
+    floor got gyro-bias sigmas too small (the arm's MEMS unit, 0.056 of its noise density
+    against the floor's 0.022; :func:`_profiled` raises the walk to the bound, never lowers
+    it). The whole run's
     innovations decide: ``nll_at(r)`` replays from the coarse start with the walk at ``r`` x
     the white-noise density and returns its innovations' negative log-likelihood and update
     count (:meth:`~.estimator.CalibrationEstimator.innovation_nll`; None if it diverged). They
