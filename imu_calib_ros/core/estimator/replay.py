@@ -370,10 +370,10 @@ def _passes(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade |
     start: Any = None  # later passes keep the first pass's coarse start (the prior mean)
     why: list[str] = []
     k = 0
-    cfg = config if config is not None else EstimatorConfig()  # the estimator's defaults
     while True:
         est, ledger = _replay_pass(open_samples(), fixture, grade, config, init, 4000,
                                    progress, start)
+        cfg = est.config  # the settings the pass ran with (the defaults for config None)
         if k == 0 and cfg.walk_profile and est.start is not None and bias_walk_sources(
                 grade, est.start, cfg.aiding_gyro_noise_rad_s_rt_hz)[0] == MEMS_FLOOR_SOURCE:
             est, ledger = _profiled(open_samples, fixture, grade, config, progress, est, ledger)
