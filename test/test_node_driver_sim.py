@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 200))
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 200)))  # conftest's
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 from ros_helpers import start_node, stop_node  # noqa: E402

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 200))
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 200)))  # conftest's
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 import rclpy  # noqa: E402
