@@ -214,3 +214,37 @@ def test_method_options_are_used() -> None:
     res = srt.calibrate(sim.imu, sim.joints, fx, grade, srt.SrtOptions(iterations=1))
     assert isinstance(res, CalibrationResult) and res.extra['method'] == 'srt'
     assert len(res.extra['srt']['iterations']) == 1
+
+
+def test_raw_priors_cover_the_worlds_raw_units() -> None:
+    """An uncalibrated unit's prior (``estimator.priors.RAW_PRIOR``, the registry's) is at
+    least the largest raw error any of the world's unit classes draws (its own tables,
+    ``testing/world_units.py``, from datasheets). A prior narrower than real parts is a
+    silent wrong calibration wherever a plan leaves the group to it: with G's at 0.01
+    (deg/s)/g (a tenth of its comment's 0.1) a consumer unit's G ended 6.2 sigma off on a
+    12-move random plan, the self-check passed. The coarse fit's gyro prior is the same."""
+    from imu_calib_ros.core.estimator.coarse import GYRO_FIT_SD0
+    from imu_calib_ros.core.estimator.priors import RAW_PRIOR
+    from imu_calib_ros.testing import world_units as wu
+    g0 = 9.80665
+    specs = wu.SPECS.values()
+    scale = max(s.scale for s in specs)
+    worst = {
+        'gyro_bias': max(s.gyro_bias_rad_s for s in specs),
+        'gyro_scale': scale, 'accel_scale': scale,
+        'gyro_asymmetry': wu.ASYMMETRY_FRACTION * scale,
+        'accel_asymmetry': wu.ASYMMETRY_FRACTION * scale,
+        'gyro_misalignment': max(s.misalignment_rad for s in specs),
+        'accel_misalignment': max(s.misalignment_rad for s in specs),
+        'gyro_g_sensitivity': max(s.g_sensitivity[1] for s in specs),
+        'accel_bias': max(s.accel_bias_m_s2 for s in specs),
+        'accel_quadratic': wu.QUADRATIC_UG_G2[1] * 1e-6 / g0,  # ug/g^2 -> 1/(m/s^2)
+        'size_effect': max(s.size_effect_m for s in specs),
+    }
+    assert set(worst) == set(RAW_PRIOR)
+    for name, w in worst.items():
+        assert RAW_PRIOR[name] >= w * (1.0 - 1e-12), (name, RAW_PRIOR[name], w)
+    assert worst['gyro_g_sensitivity'] == pytest.approx(0.1 * np.pi / 180.0 / g0, rel=1e-12)
+    assert GYRO_FIT_SD0[4:7] == pytest.approx([RAW_PRIOR['gyro_g_sensitivity']] * 3, rel=0)
+    assert GYRO_FIT_SD0[[0, 3, 7]] == pytest.approx(
+        [RAW_PRIOR['gyro_scale'], RAW_PRIOR['gyro_asymmetry'], RAW_PRIOR['gyro_bias']], rel=0)

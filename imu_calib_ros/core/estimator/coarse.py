@@ -43,6 +43,7 @@ from scipy.interpolate import CubicSpline
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
+from .. import parameters as registry
 from ..allan import overlapping_avar
 from ..rotation import skew
 from . import error_model as em
@@ -430,9 +431,11 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
     return s, sig
 
 
-#: weak prior of the gyro fit for an uncalibrated unit: B = I +- 3 %, asymmetry 0.3 %,
-#: G 0.1 (deg/s)/g, bias 1 deg/s (the raw-unit table of the estimator)
-GYRO_FIT_SD0 = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.8e-5, 1.8e-5, 1.8e-5, 1.75e-2])
+#: weak prior of the gyro fit for an uncalibrated unit, beta = (B_i (3), ag_i, G_i (3), bg_i):
+#: the raw-unit priors of the estimator (B = I + Kg: scale and misalignment, both 3 %)
+_RAW = {g.name: float(g.raw_prior or 0.0) for g in registry.SENSOR_GROUPS}
+GYRO_FIT_SD0 = np.array([*[_RAW['gyro_scale']] * 3, _RAW['gyro_asymmetry'],
+                         *[_RAW['gyro_g_sensitivity']] * 3, _RAW['gyro_bias']])
 
 
 def _fit_gyros(fixture: Any, spline: CubicSpline, t_s: FloatArray, wi: FloatArray,
