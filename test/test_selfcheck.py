@@ -51,6 +51,10 @@ def test_the_false_alarm_rate_is_shared_between_the_statistical_checks() -> None
     ({'imu_used': 4000}, 'not used by the filter'),
     ({'nis': {'velocity': NisTotals(1000, 0, 3400.0)}}, 'velocity NIS per dof 1.13'),
     ({'nis': {'velocity': NisTotals(1000, 3, 3000.0)}}, '3 of 1003 measurement updates gated'),
+    ({'raw_priors': True, 'plan_poses': 3, 'plan_axes_short': True},
+     'a plan that has 3 stationary poses and turns about fewer than three IMU axes'),
+    ({'raw_priors': True, 'plan_poses': 8, 'plan_axes_short': True},
+     'a plan that turns about fewer than three IMU axes'),
 ])
 def test_each_piece_of_evidence_fails_the_run_in_one_line(kw: dict[str, Any],
                                                          word: str) -> None:
@@ -61,6 +65,19 @@ def test_each_piece_of_evidence_fails_the_run_in_one_line(kw: dict[str, Any],
     d = v.as_dict()
     assert d['passed'] is False and d['summary'] == v.line
     assert [n for n, c in d['checks'].items() if not c['passed']] == [c.name for c in v.failed]
+
+
+def test_the_plan_check_holds_only_an_uncalibrated_unit_to_turns_about_three_axes() -> None:
+    """A grade with sigmas (a calibrated unit's narrow priors) or an uncounted plan is not
+    judged on its plan; a raw unit must be turned about three IMU axes (few poses alone are
+    named, not refused)."""
+    weak = {'plan_poses': 3, 'plan_axes_short': True}
+    assert judge(evidence(**weak)).passed  # a grade's priors: no plan check
+    assert 'plan' not in [c.name for c in judge(evidence(**weak)).checks]
+    assert judge(evidence(raw_priors=True, plan_axes_short=True)).passed  # not counted (-1)
+    v = judge(evidence(raw_priors=True, plan_poses=2))
+    assert v.passed and 'plan' in [c.name for c in v.checks]
+    assert not judge(evidence(raw_priors=True, plan_poses=12, plan_axes_short=True)).passed
 
 
 def test_nis_bound_is_the_chi_square_quantile_and_only_the_upper_tail_fails() -> None:

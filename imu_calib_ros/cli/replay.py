@@ -151,24 +151,17 @@ def _joints_the_fixture_lacks(args: Any, fixture: Any) -> str:
             f"(fixture joints: {', '.join(fixture.joint_names)})")
 
 
-#: fewer stationary poses than the six-position test has: too few for a raw unit's errors
-WEAK_PLAN_POSES = 6
-
-
 def _weak_plan_hint(run_: Any, fixture: Any) -> str:
-    """A clause naming what the recorded plan lacks when it is weak (fewer than
-    :data:`WEAK_PLAN_POSES` distinct stationary poses over the run, or turns about fewer than
-    three IMU axes in what the coarse start saw), for a refusal whose cause is then the plan
-    rather than the unit, and what to record instead on this fixture; ``''`` otherwise."""
-    import numpy as np
+    """A clause naming what the recorded plan lacks when it is weak (fewer than the
+    self-check's ``min_plan_poses`` distinct stationary poses over the run, or turns about
+    fewer than three IMU axes in what the coarse start saw), for a refusal whose cause is
+    then the plan rather than the unit, and what to record instead on this fixture; ``''``
+    otherwise."""
+    from ..core.estimator.selfcheck import SelfCheckConfig
     lacks = []
-    wins = run_.ledger.windows()
-    poses: list[Any] = []
-    for w in wins:
-        if not any(np.max(np.abs(w[2] - p)) < 1e-3 for p in poses):
-            poses.append(w[2])
-    if len(poses) < WEAK_PLAN_POSES:
-        lacks.append(f'{len(poses)} stationary poses')
+    poses = run_.ledger.distinct_poses()
+    if poses < SelfCheckConfig().min_plan_poses:
+        lacks.append(f'{poses} stationary poses')
     start = run_.estimator.start
     if start is not None and any('fewer than three' in n for n in start.notes):
         lacks.append('turns about fewer than three IMU axes')

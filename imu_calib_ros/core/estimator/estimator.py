@@ -677,7 +677,7 @@ class CalibrationEstimator:
         tau = self._theta_a[em.accel_cols('time_offset')][0]
         return propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
                                self._nominal_dt, B, n, self.layout,
-                               self.fixture.site.omega_ie_enu)
+                               self.fixture.site.omega_ie_enu, self.fixture.concurrent)
 
     def _record_history(self, force: bool = False) -> None:
         """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""

@@ -244,7 +244,20 @@ class RunLedger:
             + int(c.get('navigation_resets', 0)),
             gate_probability=float(est.config.gate_probability), nis=nis,
             windows=self.window_statistics(), nis_complete=complete, raw_ratio=raw,
-            raw_label=label, raw_states=n_raw, covariance_scale=est.covariance_scale())
+            raw_label=label, raw_states=n_raw, covariance_scale=est.covariance_scale(),
+            raw_priors=est.grade is None or est.grade.sigma is None,
+            plan_poses=self.distinct_poses(),
+            plan_axes_short=est.start is not None and any(
+                'fewer than three' in n for n in est.start.notes))
+
+    def distinct_poses(self) -> int:
+        """Distinct stationary poses of the run: its windows' joint angles, apart by more
+        than 1 mrad in some joint (the plan check of the self-check, and the replay's hint)."""
+        poses: list[FloatArray] = []
+        for w in self.windows():
+            if not any(np.max(np.abs(w[2] - p)) < 1e-3 for p in poses):
+                poses.append(w[2])
+        return len(poses)
 
     def raw_ratio(self) -> tuple[float, str, int]:
         """Largest ``|estimate| / sqrt(RAW_PRIOR^2 + sigma^2)`` over the scale and

@@ -61,6 +61,16 @@ have probabilities below 1e-40 then):
     The fraction of the recording the filter did not use (samples missing in gaps, rejected,
     dropped at gaps and while re-aligning after the first alignment): above
     ``max_lost_fraction`` (1/2) the filter's evidence covers less of the run than it missed.
+``plan``
+    An uncalibrated unit (no grade with a ``sigma:`` block: raw priors) on a plan that turns
+    it about fewer than three IMU axes (the coarse start's note: the mounting is then not
+    separable from the misalignments). Such a plan cannot determine a raw unit, and the
+    covariance does not show it: linearised at the moving estimate, the filter takes
+    information along directions the plan does not excite (a three-pose plan: misalignments
+    24 sigma off; a one-axis rate table: a gyro scale 153 sigma off, both with every
+    statistical check passed). Counted, not statistical. Fewer than ``min_plan_poses`` (6)
+    distinct stationary poses alone is named in the text, not refused: the dishonest runs
+    lacked an axis, and a live run saved after seconds has a pose or two.
 
 The verdict is the list of checks; :attr:`Verdict.line` names the failed evidence in one line.
 """
@@ -102,6 +112,9 @@ class SelfCheckConfig:
     # binomial bound, at most this fraction of the updates, is an outlier, not a wrong
     # calibration (a world MEMS run gated 3 of 15,174 with every parameter honest)
     max_gated_fraction: float = 1e-3
+    # fewer distinct stationary poses than the six-position test has: named by the plan
+    # check (and the replay's refusal hint), not refused on its own
+    min_plan_poses: int = 6
 
     def __post_init__(self) -> None:
         if not 0.0 < self.false_alarm < 0.5:
@@ -155,6 +168,9 @@ class RunEvidence:
     raw_states: int = 0  # sensor-error states compared
     nis_complete: bool = True  # every filter of the run was seen (else the sums are partial)
     covariance_scale: float = 1.0  # factor on the reported covariance (whole-run NIS per dof)
+    raw_priors: bool = False  # the unit had no grade sigma: its priors are the raw unit's
+    plan_poses: int = -1  # distinct stationary poses of the run (-1: not counted)
+    plan_axes_short: bool = False  # the plan turns the IMU about fewer than three axes
 
 
 @dataclass(frozen=True)
@@ -229,6 +245,14 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
                         f'used by the filter (gaps, rejections, {ev.reinitialisations} '
                         f'navigation re-initialisation(s); limit {100 * cfg.max_lost_fraction:g}'
                         ' %)'))
+    if ev.raw_priors and ev.plan_poses >= 0:
+        few = f'has {ev.plan_poses} stationary poses and ' \
+            if ev.plan_poses < cfg.min_plan_poses else ''
+        checks.append(Check('plan', not ev.plan_axes_short, ev.plan_poses, cfg.min_plan_poses,
+                            f'an uncalibrated unit on a plan that {few}turns about fewer '
+                            'than three IMU axes: too little to determine its errors, whatever '
+                            'the sigmas say' if ev.plan_axes_short
+                            else f'{ev.plan_poses} stationary poses'))
     # --- statistical checks, each at alpha
     for kind in ('velocity', 'attitude'):
         t = ev.nis.get(kind)
