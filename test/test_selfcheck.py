@@ -78,6 +78,11 @@ def test_the_plan_check_holds_only_an_uncalibrated_unit_to_turns_about_three_axe
     v = judge(evidence(raw_priors=True, plan_poses=2))
     assert v.passed and 'plan' in [c.name for c in v.checks]
     assert not judge(evidence(raw_priors=True, plan_poses=12, plan_axes_short=True)).passed
+    flat = {'raw_priors': True, 'plan_accel_reach': (0.08, 2)}
+    v = judge(evidence(plan_poses=8, **flat))
+    assert not v.passed and 'never stands accelerometer z within 60 deg of vertical' in v.line
+    assert judge(evidence(plan_poses=1, **flat)).passed  # a save at the first pose
+    assert judge(evidence(plan_poses=8, raw_priors=True, plan_accel_reach=(0.5, 2))).passed
 
 
 def test_nis_bound_is_the_chi_square_quantile_and_only_the_upper_tail_fails() -> None:

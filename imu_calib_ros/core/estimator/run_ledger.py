@@ -248,7 +248,19 @@ class RunLedger:
             raw_priors=est.grade is None or est.grade.sigma is None,
             plan_poses=self.distinct_poses(),
             plan_axes_short=est.start is not None and any(
-                'fewer than three' in n for n in est.start.notes))
+                'fewer than three' in n for n in est.start.notes),
+            plan_accel_reach=self.accel_reach())
+
+    def accel_reach(self) -> tuple[float, int]:
+        """``(reach, axis)``: of the accelerometer axis the stationary windows stood least
+        near vertical, the largest share of the specific force along it over the windows
+        (1: stood up or down, 0: always horizontal); ``(1.0, -1)`` without windows."""
+        f = np.array([w[4] for w in self.windows()]).reshape(-1, 3)
+        if not len(f):
+            return 1.0, -1
+        reach = (np.abs(f) / np.maximum(np.linalg.norm(f, axis=1), 1e-9)[:, None]).max(axis=0)
+        i = int(np.argmin(reach))
+        return float(reach[i]), i
 
     def distinct_poses(self) -> int:
         """Distinct stationary poses of the run: its windows' joint angles, apart by more

@@ -71,6 +71,12 @@ have probabilities below 1e-40 then):
     statistical check passed). Counted, not statistical. Fewer than ``min_plan_poses`` (6)
     distinct stationary poses alone is named in the text, not refused: the dishonest runs
     lacked an axis, and a live run saved after seconds has a pose or two.
+    Likewise a plan of two or more poses that never stands an accelerometer axis within
+    60 deg of vertical (``min_accel_reach``: the largest share of gravity along it at any
+    stationary window below 0.5): its scale factor and the misalignments acting on it rest
+    on small components, and a random plan that kept the IMU z axis within 5 deg of
+    horizontal left a consumer unit's misalignments and an x scale 24 sigma off, every
+    statistical check passed.
 
 The verdict is the list of checks; :attr:`Verdict.line` names the failed evidence in one line.
 """
@@ -115,6 +121,9 @@ class SelfCheckConfig:
     # fewer distinct stationary poses than the six-position test has: named by the plan
     # check (and the replay's refusal hint), not refused on its own
     min_plan_poses: int = 6
+    # the least share of gravity each accelerometer axis must see at some stationary window
+    # of a plan with two or more poses (0.5: within 60 deg of vertical; the plan check)
+    min_accel_reach: float = 0.5
 
     def __post_init__(self) -> None:
         if not 0.0 < self.false_alarm < 0.5:
@@ -171,6 +180,9 @@ class RunEvidence:
     raw_priors: bool = False  # the unit had no grade sigma: its priors are the raw unit's
     plan_poses: int = -1  # distinct stationary poses of the run (-1: not counted)
     plan_axes_short: bool = False  # the plan turns the IMU about fewer than three axes
+    # (reach, axis): the accelerometer axis stood least near vertical, the largest share of
+    # gravity it saw at a stationary window (RunLedger.accel_reach); axis -1: not counted
+    plan_accel_reach: tuple[float, int] = (1.0, -1)
 
 
 @dataclass(frozen=True)
@@ -248,11 +260,15 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
     if ev.raw_priors and ev.plan_poses >= 0:
         few = f'has {ev.plan_poses} stationary poses and ' \
             if ev.plan_poses < cfg.min_plan_poses else ''
-        checks.append(Check('plan', not ev.plan_axes_short, ev.plan_poses, cfg.min_plan_poses,
-                            f'an uncalibrated unit on a plan that {few}turns about fewer '
-                            'than three IMU axes: too little to determine its errors, whatever '
-                            'the sigmas say' if ev.plan_axes_short
-                            else f'{ev.plan_poses} stationary poses'))
+        reach, axis = ev.plan_accel_reach
+        flat = ev.plan_poses >= 2 and axis >= 0 and reach < cfg.min_accel_reach
+        lacks = (['turns about fewer than three IMU axes'] if ev.plan_axes_short else []) + (
+            [f'never stands accelerometer {"xyz"[axis]} within 60 deg of vertical (at most '
+             f'{reach:.2g} of gravity along it)'] if flat else [])
+        checks.append(Check('plan', not lacks, ev.plan_poses, cfg.min_plan_poses,
+                            f'an uncalibrated unit on a plan that {few}{" and ".join(lacks)}: '
+                            'too little to determine its errors, whatever the sigmas say'
+                            if lacks else f'{ev.plan_poses} stationary poses'))
     # --- statistical checks, each at alpha
     for kind in ('velocity', 'attitude'):
         t = ev.nis.get(kind)
