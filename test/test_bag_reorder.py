@@ -229,8 +229,10 @@ def test_replay_of_a_receipt_jitter_bag_equals_the_stamp_ordered_one(
     def replay(name: str, *extra: str) -> CalibrationResult:
         out = tmp_path / f'{name}.yaml'
         src = tmp_path / ('ordered.mcap' if name == 'ordered' else 'jittered')
+        # --force: three SRT sequences never stand accelerometer x up, so the self-check's
+        # plan check refuses them for a unit without a grade; the question here is the order
         assert main(['replay', str(src), '--fixture', 'three_axis', '--output', str(out),
-                     *extra]) == 0
+                     '--force', *extra]) == 0
         return CalibrationResult.load(out)
 
     ref = replay('ordered', '--quiet')
