@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from .buffers import point_to_mean
-from .coarse import CoarseStart, NoRotation, coarse_start
+from .coarse import CoarseStart, NoRotation, coarse_start, implausible
 from .config import EstimatorConfig
 
 if TYPE_CHECKING:
@@ -122,4 +122,8 @@ class Bootstrap:
             return False, None
         if st is not None and not final and not st.determined():
             return False, st  # not yet determined: gather more
+        if st is not None and not final and implausible(st) is not None:
+            # a start on part of the data that no unit can have: more data may show why (the
+            # caller refuses it only at the end of the data)
+            return False, None
         return True, st

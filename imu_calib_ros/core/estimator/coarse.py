@@ -592,6 +592,35 @@ def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOI
 #: the accelerometer window fit's weak prior per axis: matrix row (3 %), asymmetry (0.3 %),
 #: bias (1 m/s^2), in :func:`_fit_accels` and :func:`fit_joint_zeros`
 ACCEL_FIT_PRIOR_SD = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
+#: an accelerometer's scale factor (and asymmetry) counts as measured once a stationary window
+#: put at least this share of gravity along its axis (within 60 deg of vertical); the
+#: self-check's plan check uses the same share (``SelfCheckConfig.min_accel_reach``)
+MIN_ACCEL_REACH = 0.5
+#: prior sigma that holds an unreached axis's scale and asymmetry at nominal in the fits
+_PINNED_SD = 1e-6
+
+
+def accel_reach(g_nom: FloatArray, gravity: float) -> FloatArray:
+    """Largest share of gravity along each IMU axis over the windows' nominal gravity
+    ``g_nom`` (K, 3): (3,), 0 without windows."""
+    if len(g_nom) == 0:
+        return np.zeros(3)
+    return np.max(np.abs(np.asarray(g_nom, float)), axis=0) / gravity
+
+
+def _unreached_sd(reach: FloatArray, i: int, sd: FloatArray) -> FloatArray:
+    """``sd`` (A row, aa, ba) of axis ``i``'s fit with the response to an unreached axis (the
+    column of ``A`` for gravity along it) and, if ``i`` is unreached, its asymmetry pinned at
+    nominal: the few per cent of gravity along an axis no window stood within 60 deg of
+    vertical weigh the nominal direction's errors (encoder zeros, the mounting), not the
+    response to it (a navigation unit whose y axis had stayed horizontal for four windows,
+    0.03 m/s^2 of gravity along it from 3 mrad encoder zeros, fitted a y scale of -104 %
+    with a sigma of 0.04 % and a z-from-y misalignment of -99 %, and the run was refused)."""
+    out = sd.copy()
+    out[:3][reach < MIN_ACCEL_REACH] = _PINNED_SD
+    if reach[i] < MIN_ACCEL_REACH:
+        out[3] = _PINNED_SD
+    return out
 
 
 def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: float
@@ -610,6 +639,7 @@ def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: floa
     # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
     # unmeasured); the quadratic term is left to the filter
     sd0 = ACCEL_FIT_PRIOR_SD
+    reach = accel_reach(g_nom, g)
     rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
     Xa = np.hstack([g_nom, np.zeros((len(wins), 1)), np.ones((len(wins), 1))])
     for _ in range(2):  # |f_i| regressor from the previous round's prediction
@@ -619,8 +649,13 @@ def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: floa
             beta0 = np.zeros(5)
             beta0[i] = 1.0
             fits.append(_cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
-                                       beta0, sd0, noise_a ** 2 / dt))
+                                       beta0, _unreached_sd(reach, i, sd0),
+                                       noise_a ** 2 / dt))
         A = np.array([f_[0][0:3] for f_ in fits])
+    for j in np.flatnonzero(reach < MIN_ACCEL_REACH):  # held at nominal: not measured
+        for i in range(3):
+            fits[i][1][j] = np.inf
+        fits[j][1][3] = np.inf
     return A, fits
 
 
@@ -674,6 +709,9 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     a_sd = ACCEL_FIT_PRIOR_SD
     sd = np.concatenate([np.tile(a_sd[0:3], 3), np.full(3, a_sd[3]), np.full(3, a_sd[4]),
                          np.full(m, JOINT_ZERO_PRIOR_RAD)])
+    g_nom0 = np.einsum('kji,j->ki', fixture.R_enu_imu(qw), g_enu)
+    for j in np.flatnonzero(accel_reach(g_nom0, g_enu[2]) < MIN_ACCEL_REACH):
+        sd[j:9:3] = sd[9 + j] = _PINNED_SD  # A[:, j] and aa[j] at nominal (_unreached_sd)
     cov = np.diag(sd ** 2)
     for _ in range(rounds):
         A, aa, ba, z = p[:9].reshape(3, 3), p[9:12], p[12:15], p[15:]

@@ -90,6 +90,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_factor, cho_solve
 
+from .coarse import MIN_ACCEL_REACH
 from .measurements import MEASUREMENT_DOF
 from .quantiles import binom_isf, chi2_isf, chi2_ppf, chi2_sf, norm_isf
 
@@ -123,7 +124,7 @@ class SelfCheckConfig:
     min_plan_poses: int = 6
     # the least share of gravity each accelerometer axis must see at some stationary window
     # of a plan with two or more poses (0.5: within 60 deg of vertical; the plan check)
-    min_accel_reach: float = 0.5
+    min_accel_reach: float = MIN_ACCEL_REACH
 
     def __post_init__(self) -> None:
         if not 0.0 < self.false_alarm < 0.5:
