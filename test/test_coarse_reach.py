@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from imu_calib_ros.core.estimator.coarse import (MIN_ACCEL_REACH, StaticWindow, _fit_accels,
-                                                 accel_reach)
+                                                 accel_reach, least_reach)
 from imu_calib_ros.core.fixture import Fixture
 from imu_calib_ros.testing.lab_motion import LAB_FIXTURES
 
@@ -56,3 +56,19 @@ def test_an_unreached_axis_has_no_measured_scale() -> None:
         sd = float(np.sqrt(fits[i][1][i]))
         assert np.isfinite(sd) and abs(A[i, i] - true) < 3.0 * sd + 1e-4, (i, A[i, i], sd)
     assert MIN_ACCEL_REACH == 0.5
+
+
+def test_the_least_reached_direction_of_a_table_that_never_stands_its_inner_axis_up() -> None:
+    """A two-axis table with a vertical outer axis and a horizontal inner one, the IMU turned
+    45 deg about z on it ('south_2axis_vh'): every IMU axis comes within 45 deg of vertical,
+    but gravity stays perpendicular to the inner axis, (1, -1, 0)/sqrt(2) in IMU axes."""
+    fx = Fixture.from_dict(LAB_FIXTURES['south_2axis_vh'])
+    q = np.radians(np.array(np.meshgrid(np.arange(8) * 45.0, np.arange(8) * 45.0)).reshape(2, -1).T)
+    u = np.einsum('kji,j->ki', fx.R_enu_imu(q), [0.0, 0.0, 1.0])
+    assert np.all(accel_reach(u, 1.0) > 0.7)  # each axis: within 45 deg of vertical
+    reach, v = least_reach(u)
+    assert reach < 1e-3
+    assert abs(abs(v @ [0.5 ** 0.5, -0.5 ** 0.5, 0.0]) - 1.0) < 1e-3
+    # the six axis-up/down poses reach every direction at least 1/sqrt(3) of the way
+    reach6, _ = least_reach(np.vstack([np.eye(3), -np.eye(3)]))
+    assert abs(reach6 - 3 ** -0.5) < 2e-3 and reach6 > MIN_ACCEL_REACH

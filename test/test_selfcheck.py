@@ -78,11 +78,15 @@ def test_the_plan_check_holds_only_an_uncalibrated_unit_to_turns_about_three_axe
     v = judge(evidence(raw_priors=True, plan_poses=2))
     assert v.passed and 'plan' in [c.name for c in v.checks]
     assert not judge(evidence(raw_priors=True, plan_poses=12, plan_axes_short=True)).passed
-    flat = {'raw_priors': True, 'plan_accel_reach': (0.08, 2)}
+    flat = {'raw_priors': True, 'plan_accel_reach': (0.08, (0.0, 0.0, 1.0))}
     v = judge(evidence(plan_poses=8, **flat))
     assert not v.passed and 'never stands accelerometer z within 60 deg of vertical' in v.line
     assert judge(evidence(plan_poses=1, **flat)).passed  # a save at the first pose
-    assert judge(evidence(plan_poses=8, raw_priors=True, plan_accel_reach=(0.5, 2))).passed
+    assert judge(evidence(plan_poses=8, raw_priors=True,
+                          plan_accel_reach=(0.5, (0.0, 0.0, 1.0)))).passed
+    r = 0.5 ** 0.5  # a direction that is no axis is named by its components
+    v = judge(evidence(plan_poses=8, raw_priors=True, plan_accel_reach=(0.0, (r, -r, 0.0))))
+    assert not v.passed and 'the IMU direction (0.71, -0.71, 0.00)' in v.line
 
 
 def test_nis_bound_is_the_chi_square_quantile_and_only_the_upper_tail_fails() -> None:

@@ -608,6 +608,49 @@ def accel_reach(g_nom: FloatArray, gravity: float) -> FloatArray:
     return np.max(np.abs(np.asarray(g_nom, float)), axis=0) / gravity
 
 
+def _sphere(n: int = 4000) -> FloatArray:
+    """``n`` unit vectors spread evenly over the upper half sphere (a Fibonacci lattice;
+    ``v`` and ``-v`` have the same reach): 1.6 deg apart, 0.03 of reach near the threshold."""
+    k = np.arange(n) + 0.5
+    z = k / n
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+_SPHERE = _sphere()
+
+
+def least_reach(directions: FloatArray) -> tuple[float, FloatArray]:
+    """``(reach, v)``: the IMU direction ``v`` (unit, (3,)) the windows' gravity directions
+    (K, 3, any length) came least near, and the largest share of gravity along it, ``max_k
+    |u_k . v|`` (1: stood up or down, 0: always horizontal). A table can leave a direction
+    that is no axis unreached: a two-axis table with a vertical outer and a horizontal inner
+    axis never stands its inner axis up, and an IMU mounted at 45 deg to it has every axis
+    within 45 deg of vertical at some pose while the accelerometers' response along the inner
+    axis is never seen (its scale and misalignment pair ended 13 sigma off, the self-check
+    passing). ``(1.0, zeros)`` without windows. Searched on a lattice (:func:`_sphere`), then
+    refined by a local search: no library minimises a max over a sphere."""
+    u = np.asarray(directions, float).reshape(-1, 3)
+    if not len(u):
+        return 1.0, np.zeros(3)
+    u = u / np.maximum(np.linalg.norm(u, axis=1), 1e-12)[:, None]
+    reach = np.max(np.abs(u @ _SPHERE.T), axis=0)
+    v = _SPHERE[int(np.argmin(reach))]
+    best = float(np.min(reach))
+    step = 0.03
+    for _ in range(40):  # pattern search on the sphere around the lattice's best
+        cand = v + step * np.vstack([np.eye(3), -np.eye(3)])
+        cand /= np.linalg.norm(cand, axis=1)[:, None]
+        r = np.max(np.abs(u @ cand.T), axis=0)
+        j = int(np.argmin(r))
+        if r[j] < best:
+            best, v = float(r[j]), cand[j]
+        else:
+            step *= 0.5
+    return best, v
+
+
 def _unreached_sd(reach: FloatArray, i: int, sd: FloatArray) -> FloatArray:
     """``sd`` (A row, aa, ba) of axis ``i``'s fit with the response to an unreached axis (the
     column of ``A`` for gravity along it) and, if ``i`` is unreached, its asymmetry pinned at

@@ -28,7 +28,7 @@ from ..input_guard import IMU_REASONS
 from ..rotation import skew
 from ..types import ImuBatch, JointBatch, JointSample
 from . import error_model as em
-from .coarse import pair_walk, still_spans, walk_threshold
+from .coarse import least_reach, pair_walk, still_spans, walk_threshold
 from .estimator import RAW_PRIOR
 from .selfcheck import (NisTotals, RunEvidence, SelfCheckConfig, Verdict, WindowStatistics,
                         judge, window_statistics)
@@ -251,16 +251,16 @@ class RunLedger:
                 'fewer than three' in n for n in est.start.notes),
             plan_accel_reach=self.accel_reach())
 
-    def accel_reach(self) -> tuple[float, int]:
-        """``(reach, axis)``: of the accelerometer axis the stationary windows stood least
-        near vertical, the largest share of the specific force along it over the windows
-        (1: stood up or down, 0: always horizontal); ``(1.0, -1)`` without windows."""
+    def accel_reach(self) -> tuple[float, tuple[float, ...]]:
+        """``(reach, direction)``: of the IMU directions, the one the stationary windows stood
+        least near vertical (a unit vector) and the largest share of the specific force along
+        it over the windows (1: stood up or down, 0: always horizontal; coarse.least_reach);
+        ``(1.0, ())`` without windows."""
         f = np.array([w[4] for w in self.windows()]).reshape(-1, 3)
         if not len(f):
-            return 1.0, -1
-        reach = (np.abs(f) / np.maximum(np.linalg.norm(f, axis=1), 1e-9)[:, None]).max(axis=0)
-        i = int(np.argmin(reach))
-        return float(reach[i]), i
+            return 1.0, ()
+        reach, v = least_reach(f)
+        return reach, tuple(float(x) for x in v)
 
     def distinct_poses(self) -> int:
         """Distinct stationary poses of the run: its windows' joint angles, apart by more

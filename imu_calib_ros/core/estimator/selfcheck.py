@@ -183,7 +183,7 @@ class RunEvidence:
     plan_axes_short: bool = False  # the plan turns the IMU about fewer than three axes
     # (reach, axis): the accelerometer axis stood least near vertical, the largest share of
     # gravity it saw at a stationary window (RunLedger.accel_reach); axis -1: not counted
-    plan_accel_reach: tuple[float, int] = (1.0, -1)
+    plan_accel_reach: tuple[float, tuple[float, ...]] = (1.0, ())
 
 
 @dataclass(frozen=True)
@@ -232,6 +232,16 @@ def _plain(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def _direction_name(v: tuple[float, ...]) -> str:
+    """'accelerometer x' for a direction within 1 deg of an IMU axis, else 'the IMU direction
+    (0.71, -0.71, 0.00)' (the accelerometers' response along it)."""
+    a = np.abs(np.asarray(v, float))
+    i = int(np.argmax(a))
+    if a[i] >= math.cos(math.radians(1.0)):
+        return f'accelerometer {"xyz"[i]}'
+    return 'the IMU direction (' + ', '.join(f'{x:.2f}' for x in v) + ')'
+
+
 def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
     """The verdict on ``ev`` (pure)."""
     cfg = config or SelfCheckConfig()
@@ -261,10 +271,10 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
     if ev.raw_priors and ev.plan_poses >= 0:
         few = f'has {ev.plan_poses} stationary poses and ' \
             if ev.plan_poses < cfg.min_plan_poses else ''
-        reach, axis = ev.plan_accel_reach
-        flat = ev.plan_poses >= 2 and axis >= 0 and reach < cfg.min_accel_reach
+        reach, v = ev.plan_accel_reach
+        flat = ev.plan_poses >= 2 and len(v) == 3 and reach < cfg.min_accel_reach
         lacks = (['turns about fewer than three IMU axes'] if ev.plan_axes_short else []) + (
-            [f'never stands accelerometer {"xyz"[axis]} within 60 deg of vertical (at most '
+            [f'never stands {_direction_name(v)} within 60 deg of vertical (at most '
              f'{reach:.2g} of gravity along it)'] if flat else [])
         checks.append(Check('plan', not lacks, ev.plan_poses, cfg.min_plan_poses,
                             f'an uncalibrated unit on a plan that {few}{" and ".join(lacks)}: '
