@@ -17,9 +17,9 @@ mounting: 1-10 deg, 5-50 mm, encoder zeros), the bag is written by the world
 Case names are ``UNIT@FIXTURE_sSEED``. Per case: exit status, the command's last stderr line
 when it is not 0, max |error/sigma| with its parameter, the count beyond 3 sigma, and the
 diagonal NEES over the estimated parameters; then ``SUMMARY``: cases passed (exit 0, nothing
-beyond 4 sigma, no held parameter beyond 3 assumed sigma; on a table that cannot calibrate a raw
-unit, :data:`EXPECT_REFUSAL`, the self-check's refusal naming why), exits non-zero, tracebacks, beyond
-3 sigma against what an honest filter gives. Not a test: it prints figures.
+beyond 4 sigma, no held parameter beyond 3 assumed sigma; on a table that cannot calibrate a
+raw unit, :data:`EXPECT_REFUSAL`, the self-check's refusal naming why), exits non-zero,
+tracebacks, beyond 3 sigma against what an honest filter gives. Not a test: it prints figures.
 """
 from __future__ import annotations
 

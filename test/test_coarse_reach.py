@@ -63,7 +63,8 @@ def test_the_least_reached_direction_of_a_table_that_never_stands_its_inner_axis
     45 deg about z on it ('south_2axis_vh'): every IMU axis comes within 45 deg of vertical,
     but gravity stays perpendicular to the inner axis, (1, -1, 0)/sqrt(2) in IMU axes."""
     fx = Fixture.from_dict(LAB_FIXTURES['south_2axis_vh'])
-    q = np.radians(np.array(np.meshgrid(np.arange(8) * 45.0, np.arange(8) * 45.0)).reshape(2, -1).T)
+    grid = np.meshgrid(np.arange(8) * 45.0, np.arange(8) * 45.0)
+    q = np.radians(np.array(grid).reshape(2, -1).T)
     u = np.einsum('kji,j->ki', fx.R_enu_imu(q), [0.0, 0.0, 1.0])
     assert np.all(accel_reach(u, 1.0) > 0.7)  # each axis: within 45 deg of vertical
     reach, v = least_reach(u)
