@@ -46,3 +46,16 @@ def test_no_zero_error_gives_none() -> None:
         wins, fx = windows(np.zeros(3), np.random.default_rng(100 + seed))
         z, s = fit_joint_zeros(fx, wins, NOISE_A, DT)
         assert np.all(z == 0.0), (seed, z, s)  # 3 sigma: 0.27 % per seed by chance
+
+
+def test_too_few_windows_leave_the_zeros_unknown_not_absent() -> None:
+    """On fewer than six windows the zeros are not fitted, and their sigma is the prior's (a
+    start is then not determined: CoarseStart.determined), not inf (which means "gravity does
+    not show this zero" and let a start on three windows go with 4.4 mrad of zeros unfitted)."""
+    from imu_calib_ros.core.estimator.coarse import JOINT_ZERO_PRIOR_RAD
+    wins, fx = windows(np.array([4e-3, -3e-3, 2e-3]), np.random.default_rng(4))
+    z, s = fit_joint_zeros(fx, wins[:5], NOISE_A, DT)
+    assert np.all(z == 0.0)
+    assert np.all(s[:2] == JOINT_ZERO_PRIOR_RAD) and np.isinf(s[2])  # the last: the mounting
+    z, s = fit_joint_zeros(fx, wins, NOISE_A, DT)
+    assert s[1] < 1e-4  # enough windows: the middle zero is fitted

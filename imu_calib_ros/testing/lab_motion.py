@@ -202,14 +202,18 @@ def _R_enu_imu(fixture: dict[str, Any], q: FloatArray) -> FloatArray:
 
 
 def lab_schedule(fixture: dict[str, Any], seed: int, positions: int = 14,
-                 dwell_s: tuple[float, float] = (10.0, 40.0)) -> TrapezoidProfile:
+                 dwell_s: tuple[float, float] = (10.0, 40.0),
+                 one_joint_at_a_time: bool = False,
+                 accel_limit_deg_s2: float | None = None) -> TrapezoidProfile:
     """A multi-position + rate-test schedule on ``fixture`` (a CONTRACT 2 mapping).
 
     Drawn from ``seed``: the lab's rate limit U(10, 60) deg/s and acceleration limit
     U(10, 200) deg/s^2; ``positions`` poses among the multiples of 90 deg of every joint (a
     quarter of them at an odd multiple of 45 deg on one joint), chosen so that each IMU axis
     is stood up and down where the table can do it; a first dwell of 60-120 s; then each
-    joint turned 1-2 revolutions one way and back at U(5, 90) deg/s.
+    joint turned 1-2 revolutions one way and back at U(5, 90) deg/s. ``one_joint_at_a_time``:
+    each move turns the joints one after the other (else all start and stop together);
+    ``accel_limit_deg_s2``: the lab's acceleration limit instead of the drawn one.
     """
     rng = np.random.default_rng(seed)
     n = len(fixture['joints'])
@@ -233,15 +237,23 @@ def lab_schedule(fixture: dict[str, Any], seed: int, positions: int = 14,
     for i in rng.choice(len(poses), size=max(1, len(poses) // 4), replace=False):
         poses[i] = poses[i].copy()
         poses[i][rng.integers(n)] += 45.0 * _DEG * rng.choice([-1.0, 1.0])
+    acc = rng.uniform(10.0, 200.0)
     sched = Schedule(names, poses[0].copy(), rng.uniform(10.0, 60.0) * _DEG,
-                     rng.uniform(10.0, 200.0) * _DEG, name=f'lab-{seed}')
+                     (accel_limit_deg_s2 or acc) * _DEG, name=f'lab-{seed}')
     sched.dwell(rng.uniform(60.0, 120.0))
     for q in poses[1:]:
         # the way round a lab's controller takes: sometimes the long one
         d = (q - sched.q + math.pi) % (2.0 * math.pi) - math.pi
         long_way = rng.random(n) < 0.2
         d = np.where(long_way & (np.abs(d) > 1e-9), d - np.sign(d) * 2.0 * math.pi, d)
-        sched.move_to(sched.q + d).dwell(rng.uniform(*dwell_s))
+        if one_joint_at_a_time:  # a controller that moves one axis after the other
+            for j in np.flatnonzero(d):
+                step = np.zeros(n)
+                step[j] = d[j]
+                sched.move_to(sched.q + step)
+        else:
+            sched.move_to(sched.q + d)
+        sched.dwell(rng.uniform(*dwell_s))
     for j in rng.permutation(n):
         turns = float(rng.integers(1, 3)) * rng.choice([-1.0, 1.0])
         rate = rng.uniform(5.0, 90.0) * _DEG
