@@ -141,6 +141,41 @@ def parse(name: str) -> tuple[Factor, int, int]:
     return FACTORS[factor], {v: k for k, v in PLAN_TAG.items()}[tag], 100 + int(seed or 0)
 
 
+def replay_and_score(d: Path, fixture: Path, name: str, described: str, gen_s: float,
+                     repo: Path | str) -> dict[str, Any]:
+    """The plain command on ``d/bag`` (a ``reproduce.sh`` beside it), scored against
+    ``d/truth.yaml``: exit status, the last stderr line, max |error/sigma|, counts beyond 3
+    and 4 sigma, the diagonal NEES, held parameters beyond 3 assumed sigma; written to
+    ``d/result.json`` (bench_corners and bench_lab)."""
+    out = d / 'calib.yaml'
+    if out.exists():
+        out.unlink()
+    cmd = br.replay_command(sys.executable, d / 'bag', fixture, out)
+    env = dict(os.environ, PYTHONPATH=str(repo), OPENBLAS_NUM_THREADS='1')
+    (d / 'reproduce.sh').write_text(f'#!/bin/sh\ncd {d}\nOPENBLAS_NUM_THREADS=1 '
+                                    f'PYTHONPATH={repo} {" ".join(map(str, cmd))}\n')
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=d, timeout=3000)
+    (d / 'stderr.txt').write_text(proc.stderr)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and 'replay x' not in ln]
+    res: dict[str, Any] = {'name': name, 'described': described,
+                           'status': proc.returncode, 'wall_s': time.perf_counter() - t0,
+                           'gen_s': gen_s, 'last_stderr': lines[-1][:300] if lines else ''}
+    if proc.returncode == 0 and out.exists():
+        rows = compare_calibration(yaml.safe_load(out.read_text()),
+                                   yaml.safe_load((d / 'truth.yaml').read_text()))
+        est = [r for r in rows if not r.fixed and r.sigma > 0.0]
+        z = np.array([r.z for r in est])
+        i = int(np.argmax(np.abs(z)))
+        res.update(n_est=len(est), max_z=float(abs(z[i])), max_z_param=est[i].name,
+                   beyond3=int(np.sum(np.abs(z) > 3)), beyond4=int(np.sum(np.abs(z) > 4)),
+                   nees=float(np.sum(z ** 2)),
+                   held_bad=[r.name for r in rows if (r.fixed or r.sigma == 0.0)
+                             and abs(r.z) > 3])
+    (d / 'result.json').write_text(json.dumps(res, indent=1))
+    return res
+
+
 def run(name: str, out_root: Path, repo: Path) -> dict[str, Any]:
     """Generate the case's bag (kept for a re-run), replay it with the plain command."""
     fac, p, seed_index = parse(name)
@@ -170,32 +205,7 @@ def run(name: str, out_root: Path, repo: Path) -> dict[str, Any]:
                                     drawn.unit, drawn.mounting, cfg, case.seed,
                                     provenance={'case': name, 'described': drawn.describe()})
     gen_s = time.perf_counter() - t0
-    out = d / 'calib.yaml'
-    if out.exists():
-        out.unlink()
-    cmd = br.replay_command(sys.executable, d / 'bag', d / 'fixture.yaml', out)
-    env = dict(os.environ, PYTHONPATH=str(repo), OPENBLAS_NUM_THREADS='1')
-    (d / 'reproduce.sh').write_text(f'#!/bin/sh\ncd {d}\nOPENBLAS_NUM_THREADS=1 '
-                                    f'PYTHONPATH={repo} {" ".join(map(str, cmd))}\n')
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=d, timeout=3000)
-    (d / 'stderr.txt').write_text(proc.stderr)
-    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and 'replay x' not in ln]
-    res: dict[str, Any] = {'name': name, 'described': drawn.describe(),
-                           'status': proc.returncode, 'wall_s': time.perf_counter() - t0,
-                           'gen_s': gen_s, 'last_stderr': lines[-1][:300] if lines else ''}
-    if proc.returncode == 0 and out.exists():
-        rows = compare_calibration(yaml.safe_load(out.read_text()),
-                                   yaml.safe_load((d / 'truth.yaml').read_text()))
-        est = [r for r in rows if not r.fixed and r.sigma > 0.0]
-        z = np.array([r.z for r in est])
-        i = int(np.argmax(np.abs(z)))
-        res.update(n_est=len(est), max_z=float(abs(z[i])), max_z_param=est[i].name,
-                   beyond3=int(np.sum(np.abs(z) > 3)), beyond4=int(np.sum(np.abs(z) > 4)),
-                   held_bad=[r.name for r in rows if (r.fixed or r.sigma == 0.0)
-                             and abs(r.z) > 3])
-    (d / 'result.json').write_text(json.dumps(res, indent=1))
-    return res
+    return replay_and_score(d, d / 'fixture.yaml', name, drawn.describe(), gen_s, repo)
 
 
 def passed(r: dict[str, Any]) -> bool:

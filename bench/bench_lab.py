@@ -25,10 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
 import shutil
-import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -36,15 +33,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / 'bench'))
+import bench_corners as bc  # noqa: E402
 import bench_robustness as br  # noqa: E402
 
 from imu_calib_ros.testing import lab_motion, world_sim  # noqa: E402
-from imu_calib_ros.testing.world_cases import compare_calibration  # noqa: E402
 
 UNITS = ('nav', 'tactical', 'industrial_mems', 'consumer_mems')
 #: tables that cannot calibrate an uncalibrated unit, and the refusal expected (exit 3, the
@@ -90,33 +86,7 @@ def run(name: str, out_root: str, repo: str) -> dict[str, Any]:
                                     seed, provenance={'case': name,
                                                       'described': drawn.describe()})
     gen_s = time.perf_counter() - t0
-    out = d / 'calib.yaml'
-    if out.exists():
-        out.unlink()
-    cmd = br.replay_command(sys.executable, d / 'bag', fx, out)
-    env = dict(os.environ, PYTHONPATH=repo, OPENBLAS_NUM_THREADS='1')
-    (d / 'reproduce.sh').write_text(f'#!/bin/sh\ncd {d}\nOPENBLAS_NUM_THREADS=1 '
-                                    f'PYTHONPATH={repo} {" ".join(map(str, cmd))}\n')
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=d, timeout=3000)
-    (d / 'stderr.txt').write_text(proc.stderr)
-    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and 'replay x' not in ln]
-    res: dict[str, Any] = {'name': name, 'described': drawn.describe(),
-                           'status': proc.returncode, 'wall_s': time.perf_counter() - t0,
-                           'gen_s': gen_s, 'last_stderr': lines[-1][:300] if lines else ''}
-    if proc.returncode == 0 and out.exists():
-        rows = compare_calibration(yaml.safe_load(out.read_text()),
-                                   yaml.safe_load((d / 'truth.yaml').read_text()))
-        est = [r for r in rows if not r.fixed and r.sigma > 0.0]
-        z = np.array([r.z for r in est])
-        i = int(np.argmax(np.abs(z)))
-        res.update(n_est=len(est), max_z=float(abs(z[i])), max_z_param=est[i].name,
-                   beyond3=int(np.sum(np.abs(z) > 3)), beyond4=int(np.sum(np.abs(z) > 4)),
-                   nees=float(np.sum(z ** 2)),
-                   held_bad=[r.name for r in rows if (r.fixed or r.sigma == 0.0)
-                             and abs(r.z) > 3])
-    (d / 'result.json').write_text(json.dumps(res, indent=1))
-    return res
+    return bc.replay_and_score(d, fx, name, drawn.describe(), gen_s, repo)
 
 
 def plan_reach(name: str) -> float:
