@@ -168,7 +168,8 @@ def test_a_plan_that_keeps_an_accelerometer_horizontal_leaves_its_scale_honest(
             '--quiet']
     assert main(args) == 3 and not out.exists()
     err = capsys.readouterr().err
-    assert 'never stands accelerometer z within 60 deg of vertical' in err, err
+    # the least-reached IMU direction (coarse.least_reach), 4 deg from z
+    assert 'near accelerometer z, within 60 deg of vertical' in err, err
     assert main([*args, '--force']) == 0
     rows = {r.name: r for r in compare_calibration(yaml.safe_load(out.read_text()), truth.data)}
     z = {n: round(rows[n].z, 2) for n in ('accel_scale[z]', 'accel_misalignment[zx]',

@@ -144,6 +144,8 @@ class CoarseStart:
     #: ``((ratio, NLL - least NLL), ...)``
     gyro_walk_bound_per_s: float = 0.0
     gyro_walk_profile: tuple[tuple[float, float], ...] = ()
+    #: the least share of gravity the windows put along any IMU direction (least_reach)
+    accel_reach: float = 1.0
 
     def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT
                    ) -> bool:
@@ -163,7 +165,8 @@ class CoarseStart:
         # gyro and accelerometer fits; at 87 s the updates were gated and the filter diverged)
         zs = np.asarray(self.joint_zero_sigma_rad, float)
         zero = float(np.max(zs[np.isfinite(zs)])) if np.any(np.isfinite(zs)) else 0.0
-        return bool(max(gyro, zero) < gyro_limit and accel < accel_limit)
+        return bool(max(gyro, zero) < gyro_limit and accel < accel_limit
+                    and self.accel_reach >= MIN_ACCEL_REACH)
 
     def summary(self) -> dict[str, Any]:
         """Plain values for provenance and logs."""
@@ -592,12 +595,14 @@ def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOI
 #: the accelerometer window fit's weak prior per axis: matrix row (3 %), asymmetry (0.3 %),
 #: bias (1 m/s^2), in :func:`_fit_accels` and :func:`fit_joint_zeros`
 ACCEL_FIT_PRIOR_SD = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
-#: an accelerometer's scale factor (and asymmetry) counts as measured once a stationary window
-#: put at least this share of gravity along its axis (within 60 deg of vertical); the
-#: self-check's plan check uses the same share (``SelfCheckConfig.min_accel_reach``)
+#: a start is determined only once the stationary windows put at least this share of gravity
+#: along every IMU direction (within 60 deg of vertical: :func:`least_reach`); the self-check's
+#: plan check uses the same share (``SelfCheckConfig.min_accel_reach``). Before that the few
+#: per cent of gravity along an unreached direction weigh the nominal direction's errors
+#: (encoder zeros, the mounting), not the accelerometers' response to it: a navigation unit
+#: whose y axis had stayed horizontal for four windows, 0.03 m/s^2 of gravity along it from
+#: 3 mrad encoder zeros, fitted a y scale of -104 % with a sigma of 0.04 %
 MIN_ACCEL_REACH = 0.5
-#: prior sigma that holds an unreached axis's scale and asymmetry at nominal in the fits
-_PINNED_SD = 1e-6
 
 
 def accel_reach(g_nom: FloatArray, gravity: float) -> FloatArray:
@@ -651,21 +656,6 @@ def least_reach(directions: FloatArray) -> tuple[float, FloatArray]:
     return best, v
 
 
-def _unreached_sd(reach: FloatArray, i: int, sd: FloatArray) -> FloatArray:
-    """``sd`` (A row, aa, ba) of axis ``i``'s fit with the response to an unreached axis (the
-    column of ``A`` for gravity along it) and, if ``i`` is unreached, its asymmetry pinned at
-    nominal: the few per cent of gravity along an axis no window stood within 60 deg of
-    vertical weigh the nominal direction's errors (encoder zeros, the mounting), not the
-    response to it (a navigation unit whose y axis had stayed horizontal for four windows,
-    0.03 m/s^2 of gravity along it from 3 mrad encoder zeros, fitted a y scale of -104 %
-    with a sigma of 0.04 % and a z-from-y misalignment of -99 %, and the run was refused)."""
-    out = sd.copy()
-    out[:3][reach < MIN_ACCEL_REACH] = _PINNED_SD
-    if reach[i] < MIN_ACCEL_REACH:
-        out[3] = _PINNED_SD
-    return out
-
-
 def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: float
                 ) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
     """The accelerometer fit on the window means, ``f = A g_nom + aa |f| + ba`` per axis:
@@ -682,7 +672,6 @@ def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: floa
     # axis-up/down poses |f_i| is collinear with bias and scale: then the asymmetry stays
     # unmeasured); the quadratic term is left to the filter
     sd0 = ACCEL_FIT_PRIOR_SD
-    reach = accel_reach(g_nom, g)
     rw = np.sqrt(nw)[:, None]  # rows of equal variance noise^2 / dt
     Xa = np.hstack([g_nom, np.zeros((len(wins), 1)), np.ones((len(wins), 1))])
     for _ in range(2):  # |f_i| regressor from the previous round's prediction
@@ -692,13 +681,8 @@ def _fit_accels(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: floa
             beta0 = np.zeros(5)
             beta0[i] = 1.0
             fits.append(_cluster_lstsq(Xa * rw, fm[:, i] * rw[:, 0], np.arange(len(wins)),
-                                       beta0, _unreached_sd(reach, i, sd0),
-                                       noise_a ** 2 / dt))
+                                       beta0, sd0, noise_a ** 2 / dt))
         A = np.array([f_[0][0:3] for f_ in fits])
-    for j in np.flatnonzero(reach < MIN_ACCEL_REACH):  # held at nominal: not measured
-        for i in range(3):
-            fits[i][1][j] = np.inf
-        fits[j][1][3] = np.inf
     return A, fits
 
 
@@ -760,9 +744,6 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     a_sd = ACCEL_FIT_PRIOR_SD
     sd = np.concatenate([np.tile(a_sd[0:3], 3), np.full(3, a_sd[3]), np.full(3, a_sd[4]),
                          np.full(m, JOINT_ZERO_PRIOR_RAD)])
-    g_nom0 = np.einsum('kji,j->ki', fixture.R_enu_imu(qw), g_enu)
-    for j in np.flatnonzero(accel_reach(g_nom0, g_enu[2]) < MIN_ACCEL_REACH):
-        sd[j:9:3] = sd[9 + j] = _PINNED_SD  # A[:, j] and aa[j] at nominal (_unreached_sd)
     cov = np.diag(sd ** 2)
     for _ in range(rounds):
         A, aa, ba, z = p[:9].reshape(3, 3), p[9:12], p[12:15], p[15:]
@@ -897,7 +878,10 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # the accelerometers need only the windows: a caller that takes only a determined start
     # stops here when they already show it is not
     accel_fit = _fit_accels(fixture, wins, noise_a, dt) if only_determined and wins else None
-    if only_determined and (accel_fit is None or not _accels_pinned(accel_fit[1], ACCEL_LIMIT)):
+    g_w = np.array([fixture.R_enu_imu(win.q_rad[None])[0][2] for win in wins]).reshape(-1, 3)
+    reach = least_reach(g_w)[0] if len(g_w) else 0.0
+    if only_determined and (accel_fit is None or not _accels_pinned(accel_fit[1], ACCEL_LIMIT)
+                            or reach < MIN_ACCEL_REACH):
         return None
     mv = idx[np.nonzero(moving)[0]]
     mv = mv[np.linspace(0, len(mv) - 1, min(len(mv), 10_000)).astype(np.intp)]
@@ -1037,7 +1021,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     theta_a = np.where(np.isfinite(sig_a), theta_a, 0.0)
     st = CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
                      noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
-                     tuple(notes), zero, zero_sig)
+                     tuple(notes), zero, zero_sig, accel_reach=reach)
     why = implausible(st) if np.any(zero) else None
     if why is not None:
         raise _ZerosMisled(why)

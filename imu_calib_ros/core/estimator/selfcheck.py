@@ -234,12 +234,14 @@ def _plain(x: float) -> float | None:
 
 def _direction_name(v: tuple[float, ...]) -> str:
     """'accelerometer x' for a direction within 1 deg of an IMU axis, else 'the IMU direction
-    (0.71, -0.71, 0.00)' (the accelerometers' response along it)."""
+    (0.71, -0.71, 0.00)' (the accelerometers' response along it), with ', near
+    accelerometer z,' when within 15 deg of one."""
     a = np.abs(np.asarray(v, float))
     i = int(np.argmax(a))
     if a[i] >= math.cos(math.radians(1.0)):
         return f'accelerometer {"xyz"[i]}'
-    return 'the IMU direction (' + ', '.join(f'{x:.2f}' for x in v) + ')'
+    near = f', near accelerometer {"xyz"[i]},' if a[i] >= math.cos(math.radians(15.0)) else ''
+    return 'the IMU direction (' + ', '.join(f'{x:.2f}' for x in v) + ')' + near
 
 
 def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
