@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import shutil
 import sys
 import time
@@ -96,14 +97,15 @@ def plan_reach(name: str) -> float:
     refusal is the expected outcome (a table whose IMU is turned 37 deg on its inner axis need
     not stand every direction up in 14 poses)."""
     from imu_calib_ros.core.estimator.coarse import least_reach
+    from imu_calib_ros.core.fixture import Fixture
     unit, fixture, seed = parse(name)
     fx = lab_motion.LAB_FIXTURES[fixture]
     prof = lab_motion.lab_schedule(fx, draw(unit, fixture, seed).plan_seed)
-    up = [lab_motion._R_enu_imu(fx, prof.evaluate([0.5 * (a + b)])[0][0])[2]
-          for a, b in prof.stationary_windows(1.0)]
-    return least_reach(np.array(up))[0]
+    mid = [0.5 * (a + b) for a, b in prof.stationary_windows(1.0)]
+    return least_reach(Fixture.from_dict(fx).R_enu_imu(prof.evaluate(mid)[0])[:, 2])[0]
 
 
+@functools.lru_cache(maxsize=None)
 def expected_refusal(name: str) -> str | None:
     """The refusal a case should end in (the self-check's words), or None."""
     from imu_calib_ros.core.estimator.coarse import MIN_ACCEL_REACH

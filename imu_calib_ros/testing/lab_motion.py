@@ -62,11 +62,6 @@ class TrapezoidProfile:
         """Every corner of the rate profile, 0 and the end."""
         return np.unique(np.append(self.t0, self.end_s))
 
-    @property
-    def q_start(self) -> FloatArray:
-        """Joint angles at t = 0."""
-        return self.q0[0].copy()
-
     def evaluate(self, t_s: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
         """q, q', q'' at ``t_s`` (N,), each (N, n); at rest at the nearest end outside."""
         t = np.clip(np.atleast_1d(np.asarray(t_s, dtype=float)), 0.0, self.end_s)

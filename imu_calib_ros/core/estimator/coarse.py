@@ -605,14 +605,6 @@ ACCEL_FIT_PRIOR_SD = np.array([3e-2, 3e-2, 3e-2, 3e-3, 1.0])
 MIN_ACCEL_REACH = 0.5
 
 
-def accel_reach(g_nom: FloatArray, gravity: float) -> FloatArray:
-    """Largest share of gravity along each IMU axis over the windows' nominal gravity
-    ``g_nom`` (K, 3): (3,), 0 without windows."""
-    if len(g_nom) == 0:
-        return np.zeros(3)
-    return np.max(np.abs(np.asarray(g_nom, float)), axis=0) / gravity
-
-
 def _sphere(n: int = 4000) -> FloatArray:
     """``n`` unit vectors spread evenly over the upper half sphere (a Fibonacci lattice;
     ``v`` and ``-v`` have the same reach): 1.6 deg apart, 0.03 of reach near the threshold."""
@@ -878,8 +870,9 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # the accelerometers need only the windows: a caller that takes only a determined start
     # stops here when they already show it is not
     accel_fit = _fit_accels(fixture, wins, noise_a, dt) if only_determined and wins else None
-    g_w = np.array([fixture.R_enu_imu(win.q_rad[None])[0][2] for win in wins]).reshape(-1, 3)
-    reach = least_reach(g_w)[0] if len(g_w) else 0.0
+    # ENU up in IMU axes at each window: row 2 of R_enu_imu
+    reach = least_reach(fixture.R_enu_imu(np.array([win.q_rad for win in wins]))[:, 2])[0] \
+        if wins else 0.0
     if only_determined and (accel_fit is None or not _accels_pinned(accel_fit[1], ACCEL_LIMIT)
                             or reach < MIN_ACCEL_REACH):
         return None

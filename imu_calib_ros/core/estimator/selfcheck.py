@@ -122,8 +122,8 @@ class SelfCheckConfig:
     # fewer distinct stationary poses than the six-position test has: named by the plan
     # check (and the replay's refusal hint), not refused on its own
     min_plan_poses: int = 6
-    # the least share of gravity each accelerometer axis must see at some stationary window
-    # of a plan with two or more poses (0.5: within 60 deg of vertical; the plan check)
+    # the least share of gravity every IMU direction must see at some stationary window of a
+    # plan with two or more poses (0.5: within 60 deg of vertical; the plan check)
     min_accel_reach: float = MIN_ACCEL_REACH
 
     def __post_init__(self) -> None:
@@ -181,8 +181,9 @@ class RunEvidence:
     raw_priors: bool = False  # the unit had no grade sigma: its priors are the raw unit's
     plan_poses: int = -1  # distinct stationary poses of the run (-1: not counted)
     plan_axes_short: bool = False  # the plan turns the IMU about fewer than three axes
-    # (reach, axis): the accelerometer axis stood least near vertical, the largest share of
-    # gravity it saw at a stationary window (RunLedger.accel_reach); axis -1: not counted
+    # (reach, direction): the IMU direction (unit vector) stood least near vertical, the
+    # largest share of gravity it saw at a stationary window (RunLedger.accel_reach); an
+    # empty direction: not counted
     plan_accel_reach: tuple[float, tuple[float, ...]] = (1.0, ())
 
 
