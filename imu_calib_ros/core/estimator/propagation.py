@@ -47,6 +47,7 @@ class Block:
     v_enu_end_m_s: FloatArray  # (B, 3) navigated velocity at the chunk ends
     omega_ib_end_rad_s: FloatArray  # (B, 3) compensated rate at the chunk-end instants
     n_gaps: int  # intervals longer than 1.5 nominal periods
+    q_corner_s: FloatArray | None = None  # (B, 6) navigation variance at corners, scaled
 
 
 #: Relative change at which the compensation has converged (``sensor_model``'s, a few ulps).
@@ -221,6 +222,49 @@ def _wide_differences(ww: FloatArray, ff: FloatArray, dt_all: FloatArray, h: int
     return out[0] / span, out[1] / span
 
 
+#: a sample whose second difference exceeds this many sigmas of the noise's own (``sqrt(6)``
+#: per-sample sigmas for raw samples) is at a corner of the motion (:func:`corner_variance`)
+CORNER_SIGMAS = 4.0
+
+
+def corner_variance(ww: FloatArray, ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray,
+                    h: int, m: int, sigma_w: float, sigma_f: float) -> FloatArray | None:
+    """Attitude and velocity variance per sample [rad^2, (m/s)^2, ENU] (m, 6) that the
+    increments carry at corners of the motion, or None when the block has none.
+
+    A table's joint acceleration jumps at the corners of a trapezoidal rate profile, and the
+    specific force of a point off the axes jumps with it (``alpha x r``: 0.1 m/s^2 at
+    2 rad/s^2 and 45 mm). An interval mean holds the step exactly, but a point sample (a
+    CONTRACT 1 option, and what the plain command reads as a mean, the measured latency taking
+    up the half period of smooth motion) cannot say where in its interval the step fell:
+    the velocity increment is off by up to ``|J| dt / 2``, variance ``J^2 dt^2 / 12`` for a
+    step placed anywhere. A step shows as second differences of +-J/2 on the two trapezoid
+    means either side of it (+-J on raw samples), so ``sum (d2 dt)^2 / 6`` is that variance for
+    trapezoid means (four times it, conservative, for point samples read as means); a kink of
+    a rate (its angle error ``a dt^2 / 8``) the same way. Only components beyond
+    :data:`CORNER_SIGMAS` of the noise's second difference (``sqrt(6)`` per-sample sigmas
+    ``sigma_w``, ``sigma_f``) count: smooth motion adds nothing, white noise 1.1e-3 of its
+    own velocity variance. Found on a
+    navigation unit at Svalbard (point samples, trapezoid moves): 10 of 7,500 velocity
+    updates gated, all at ramp corners, and the run refused; interval means of the same run
+    gated none.
+
+    ``ww``, ``ff``: the block's rates and specific forces with ``h`` rows of history before
+    and ``h`` of look-ahead after its ``m`` samples; ``R_enu_imu`` (m, 3, 3) the navigated
+    attitude at each sample, ``dt`` (m,) their intervals."""
+    d2 = np.hstack([ww[h + 1:h + m + 1] - 2.0 * ww[h:h + m] + ww[h - 1:h + m - 1],
+                    ff[h + 1:h + m + 1] - 2.0 * ff[h:h + m] + ff[h - 1:h + m - 1]])
+    d2 *= d2
+    thr = (CORNER_SIGMAS ** 2 * 6.0) * np.repeat([sigma_w ** 2, sigma_f ** 2], 3)
+    hit = d2 > thr
+    if not hit.any():
+        return None
+    var = np.where(hit, d2, 0.0) * (dt * dt / 6.0)[:, None]  # (m, 6) in the IMU frame
+    R2 = R_enu_imu * R_enu_imu  # diag(R diag(v) R^T) = (R o R) v
+    return np.hstack([np.einsum('nij,nj->ni', R2, var[:, :3]),
+                      np.einsum('nij,nj->ni', R2, var[:, 3:])])
+
+
 def table_specific_force(R_enu_imu: FloatArray, f_enu_m_s2: FloatArray) -> FloatArray:
     """The specific-force regressor of the sensor Jacobians on a table: the mean over the
     block of the navigation-frame specific force ``f_enu (N, 3)``, in each sample's IMU frame
@@ -244,7 +288,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
                     prev: tuple[Any, FloatArray, FloatArray] | None, t: IntArray,
                     w: FloatArray, f: FloatArray, nominal_dt_s: float, B: int, n: int,
                     layout: StateLayout, omega_ie_enu_rad_s: FloatArray,
-                    table: bool = False) -> Block:
+                    table: bool = False,
+                    noise_sigma: tuple[float, float] | None = None) -> Block:
     """Propagate ``nav`` (in place) over ``B`` chunks of ``n`` samples.
 
     Parameters
@@ -267,6 +312,9 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     table :
         The fixture is a table (concurrent axes): the Jacobians' specific force is
         :func:`table_specific_force`.
+    noise_sigma :
+        Per-sample white-noise sigmas (gyro rad/s, accel m/s^2): with them, the navigation
+        variance at corners of the motion (:func:`corner_variance`) in ``Block.q_corner_s``.
     """
     m = B * n
     nom = nominal_dt_s
@@ -331,6 +379,12 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     s = layout.scale
     rows_s = rows * (s[None, None, :] / s[None, 0:6, None])
     ends = np.arange(n - 1, m, n)
+    q_corner = None
+    if noise_sigma is not None:
+        var = corner_variance(ww, ff, out.R_enu_imu, dt, h, m, *noise_sigma)
+        if var is not None:
+            q_corner = var.reshape(B, n, 6).sum(axis=1) / (s[None, 0:6] ** 2)
     return Block(rows_s=rows_s, T_s=dt.reshape(B, n).sum(axis=1), ends=ends,
                  R_enu_imu_end=out.R_enu_imu[ends], v_enu_end_m_s=out.v_enu_m_s[ends],
-                 omega_ib_end_rad_s=0.5 * (w_c[ends] + w_c[ends + 1]), n_gaps=n_gaps)
+                 omega_ib_end_rad_s=0.5 * (w_c[ends] + w_c[ends + 1]), n_gaps=n_gaps,
+                 q_corner_s=q_corner)
