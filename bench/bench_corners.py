@@ -120,6 +120,20 @@ FACTORS: dict[str, Factor] = {
     'nav_sqlite3': Factor('nav', config=dict(storage='sqlite3')),
     'cmems_logjitter_slow': Factor('consumer_mems', config=dict(
         joint_rate_hz=15.0, receipt_delay_s=(1.5e-3, 2.5e-3))),
+    # a simulator's clock (use_sim_time): stamps from zero
+    'nav_simtime': Factor('nav', config=dict(start_stamp_ns=0)),
+    'cmems_simtime': Factor('consumer_mems', 'point', dict(start_stamp_ns=0)),
+    # header stamps taken on receipt by the host: IMU and/or joints late by U(0, jitter)
+    'nav_imujitter': Factor('nav', config=dict(imu_stamp_jitter_s=2e-3)),
+    'tac_imujitter_point': Factor('tactical', 'point', dict(imu_stamp_jitter_s=3e-3)),
+    'indmems_imujitter1000': Factor('industrial_mems', config=dict(
+        imu_rate_hz=1000.0, imu_stamp_jitter_s=2e-3)),
+    'nav_jointjitter': Factor('nav', config=dict(joint_stamp_jitter_s=5e-3)),
+    'cmems_bothjitter': Factor('consumer_mems', 'point', dict(
+        imu_stamp_jitter_s=4e-3, joint_stamp_jitter_s=8e-3)),
+    # a driver that publishes joint states only when a joint moved (silent at the dwells)
+    'nav_onchange': Factor('nav', config=dict(joint_on_change_rad=1e-4)),
+    'cmems_onchange': Factor('consumer_mems', config=dict(joint_on_change_rad=1e-3)),
 }
 PLAN_TAG = {0: 'srt3', 1: 'srt2', 2: 'kozlov3', 3: 'random3'}
 

@@ -273,3 +273,18 @@ def test_a_working_point_compensate_cannot_invert_is_a_divergence(
     assert calls['n'] > 5 and rc == 0, err  # --force: written even if its self-check fails
     health = CalibrationResult.load(out).extra['estimator']['health']
     assert health['restarts'] == 1, health
+
+
+def test_joint_states_published_only_on_change(tmp_path: Path, capsys) -> None:
+    """A turntable driver that publishes joint states only when a joint moved is silent at
+    every dwell: no stationary window has joint states. The line says so (and how long they
+    stop), not "start the recording at rest" (it did)."""
+    from imu_calib_ros.testing.world_cases import make_case
+    bag, truth = make_case(tmp_path, unit='tactical', size=1.0, seed=3,
+                           joint_on_change_rad=1e-4)
+    out = tmp_path / 'c.yaml'
+    rc = main(['replay', str(bag), '--fixture', str(truth.fixture_path), '--output',
+               str(out), '--quiet'])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and not out.exists(), err
+    assert 'joint states stop for up to' in err and 'not only on change' in err, err

@@ -285,6 +285,41 @@ def test_receipt_delay_reorders_log_times_at_2khz(tmp_path: Path) -> None:
     assert sorted(stamps.tolist()) == d.imu_stamps_ns.tolist()
 
 
+def test_receipt_stamps_are_late_by_the_jitter_and_increasing(tmp_path: Path) -> None:
+    """imu_stamp_jitter_s / joint_stamp_jitter_s: header stamps U(0, jitter) after the true
+    instants, strictly increasing; the values are those of the true instants."""
+    fxp = _fixture_file(tmp_path)
+    fx = WorldFixture.from_yaml(fxp)
+    prof = joint_profile(_plan([{'dwell': {'duration_s': 20.0}}]), fxp)
+    base = generate(fx, prof, _unit(), Mounting(), NOISE_FREE, seed=3)
+    cfg = dataclasses.replace(NOISE_FREE, imu_stamp_jitter_s=2e-3, joint_stamp_jitter_s=4e-3)
+    d = generate(fx, prof, _unit(), Mounting(), cfg, seed=3)
+    late_i = (d.imu_stamps_ns - base.imu_stamps_ns) * 1e-9
+    late_j = (d.joint_stamps_ns - base.joint_stamps_ns) * 1e-9
+    for late, jit in ((late_i, 2e-3), (late_j, 4e-3)):
+        assert late.min() >= 0.0 and late.max() <= jit
+        assert late.mean() == pytest.approx(jit / 2, rel=0.05)  # 2000 draws: 1.3 % spread
+    assert np.all(np.diff(d.imu_stamps_ns) > 0) and np.all(np.diff(d.joint_stamps_ns) > 0)
+    assert np.array_equal(d.gyro_rad_s, base.gyro_rad_s)
+    assert np.array_equal(d.joint_position_rad, base.joint_position_rad)
+
+
+def test_joint_states_on_change_are_silent_at_rest(tmp_path: Path) -> None:
+    """joint_on_change_rad: a state only when a joint moved by more than the threshold since
+    the last one published: one at the start of a dwell, none during it."""
+    fxp = _fixture_file(tmp_path)
+    fx = WorldFixture.from_yaml(fxp)
+    prof = joint_profile(_plan([{'dwell': {'duration_s': 10.0}},
+                                {'move': {'joint': 'j0', 'by_deg': 90.0, 'duration_s': 5.0}},
+                                {'dwell': {'duration_s': 10.0}}]), fxp)
+    cfg = dataclasses.replace(NOISE_FREE, joint_on_change_rad=1e-3)
+    d = generate(fx, prof, _unit(), Mounting(), cfg, seed=1)
+    t = (d.joint_stamps_ns - START) * 1e-9
+    assert t[0] == 0.0 and np.all((t[1:] > 9.9) & (t[1:] < 15.1))  # only while it turns
+    dq = np.abs(np.diff(d.joint_position_rad[:, 0]))
+    assert np.all(dq[1:] > 1e-3)  # every published state moved by more than the threshold
+
+
 def test_drops_come_in_bursts_and_keep_the_ends(tmp_path: Path) -> None:
     fxp = _fixture_file(tmp_path)
     fx = WorldFixture.from_yaml(fxp)

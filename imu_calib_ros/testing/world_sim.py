@@ -285,6 +285,11 @@ class WorldConfig:
     ``joint_latency_s``: joint stamp = true time + latency. ``drop_fraction_*``: fraction of
     messages lost in bursts of geometric length (mean ``drop_burst_mean``).
     ``receipt_delay_s``: None (log time = header stamp) or (lo, hi) uniform receipt delay.
+    ``imu_stamp_jitter_s``, ``joint_stamp_jitter_s``: header stamps taken on receipt by the
+    host, ``U(0, jitter)`` after the true instant (kept increasing); the values stay those of
+    the true instants (an IMU's interval mean is over its own clock's interval).
+    ``joint_on_change_rad``: > 0 publishes a joint state only when some joint moved by more
+    than this since the last one published (a driver that is silent while the table stands).
     ``joint_order``: 'fixture', 'reversed' or 'shuffled'; ``extra_joint``: add a joint the
     fixture does not know (CONTRACT 1: ignored by consumers). ``encoder_zero_rad``: each
     joint's encoder reads its true angle minus this (a table whose zero references are off:
@@ -307,6 +312,9 @@ class WorldConfig:
     drop_fraction_joint: float = 0.0
     drop_burst_mean: float = 5.0
     receipt_delay_s: tuple[float, float] | None = None
+    imu_stamp_jitter_s: float = 0.0
+    joint_stamp_jitter_s: float = 0.0
+    joint_on_change_rad: float = 0.0
     gl_nodes: int = 6
     start_stamp_ns: int = 1_715_000_000_123_456_789
     frame_id: str = 'imu_link'
@@ -322,6 +330,9 @@ class WorldConfig:
             raise ValueError('joint_order must be fixture, reversed or shuffled')
         if not 0.0 <= self.drop_fraction_imu < 0.5 or not 0.0 <= self.drop_fraction_joint < 0.5:
             raise ValueError('drop fractions must be in [0, 0.5)')
+        if min(self.imu_stamp_jitter_s, self.joint_stamp_jitter_s,
+               self.joint_on_change_rad) < 0.0:
+            raise ValueError('stamp jitters and joint_on_change_rad must be >= 0')
 
 
 @dataclass(frozen=True, eq=False)
@@ -488,6 +499,28 @@ def _drop_mask(n: int, fraction: float, mean_burst: float,
     return keep
 
 
+def _receipt_stamps(stamps: NDArray[np.int64], jitter_s: float,
+                    rng: np.random.Generator) -> NDArray[np.int64]:
+    """Stamps taken on receipt: ``U(0, jitter)`` late, kept strictly increasing."""
+    if jitter_s <= 0.0:
+        return stamps
+    late = stamps + np.round(rng.uniform(0.0, jitter_s, len(stamps)) * 1e9).astype(np.int64)
+    k_us = np.arange(len(late), dtype=np.int64) * 1000  # at least 1 us apart
+    return np.maximum.accumulate(late - k_us) + k_us
+
+
+def _on_change(q: FloatArray, threshold_rad: float) -> NDArray[np.bool_]:
+    """Publish-on-change mask: a state is kept when some joint moved by more than
+    ``threshold_rad`` since the last kept one (the first is kept)."""
+    keep = np.zeros(len(q), dtype=bool)
+    last = None
+    for i in range(len(q)):  # sequential by nature: each decision depends on the last kept
+        if last is None or np.max(np.abs(q[i] - last)) > threshold_rad:
+            keep[i] = True
+            last = q[i]
+    return keep
+
+
 def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
              config: WorldConfig = WorldConfig(), seed: int = 0,
              provenance: dict[str, Any] | None = None,
@@ -516,8 +549,8 @@ def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
     if tuple(profile.joint_names) != fx.joint_names:
         raise ValueError(f'profile joints {profile.joint_names} != fixture {fx.joint_names}')
     cfg = config
-    rng_noise, rng_enc, rng_drop, rng_log, rng_names = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5))
+    rng_noise, rng_enc, rng_drop, rng_log, rng_names, rng_jit = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6))
     dt_ns = int(round(1e9 / cfg.imu_rate_hz))
     dt = dt_ns * 1e-9
     n = int(math.floor(profile.duration_s / dt + 1e-9))
@@ -582,6 +615,10 @@ def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
 
     keep_i = _drop_mask(n, cfg.drop_fraction_imu, cfg.drop_burst_mean, rng_drop)
     keep_j = _drop_mask(m, cfg.drop_fraction_joint, cfg.drop_burst_mean, rng_drop)
+    if cfg.joint_on_change_rad > 0.0:
+        keep_j &= _on_change(q, cfg.joint_on_change_rad)
+    stamps = _receipt_stamps(stamps, cfg.imu_stamp_jitter_s, rng_jit)
+    j_stamps = _receipt_stamps(j_stamps, cfg.joint_stamp_jitter_s, rng_jit)
     if cfg.receipt_delay_s is None:
         log_i, log_j = stamps.copy(), j_stamps.copy()
     else:
@@ -635,7 +672,10 @@ def _truth(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting, cfg: 
                  'joint_stamp_is': 'true time + joint_latency_s',
                  'start_stamp_ns': int(cfg.start_stamp_ns),
                  'receipt_delay_s': None if cfg.receipt_delay_s is None
-                 else fl(cfg.receipt_delay_s)},
+                 else fl(cfg.receipt_delay_s),
+                 'imu_stamp_jitter_s': float(cfg.imu_stamp_jitter_s),
+                 'joint_stamp_jitter_s': float(cfg.joint_stamp_jitter_s),
+                 'joint_on_change_rad': float(cfg.joint_on_change_rad)},
         'noise': unit.noise.to_dict() if cfg.noise else UnitNoise().to_dict(),
         'unit': {'kind': unit.kind, 'size': float(unit.size)},
         'provenance': {

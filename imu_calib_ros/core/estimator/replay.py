@@ -271,6 +271,12 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
                 else 'no joint states in the input')
         raise InputError(f'{what}: check --joint-topic and the fixture file')
     if not est.is_running and est.counters['imu_processed'] == 0:
+        gap = ledger.longest_joint_gap_s()
+        if gap > config.init_window_s:  # a driver that is silent while the table stands
+            raise InputError(f'the joint states stop for up to {gap:.1f} s, so no '
+                             f'stationary window of {config.init_window_s:g} s has them for '
+                             'the initial alignment: publish joint states at a steady rate, '
+                             'also while the table stands (not only on change)')
         raise InputError(f'no stationary window of {config.init_window_s:g} s with joint '
                          'states for the initial alignment: start the recording at rest')
     if est.joint_travel_rad < 1e-2:

@@ -262,6 +262,12 @@ class RunLedger:
         reach, v = least_reach(f)
         return reach, tuple(float(x) for x in v)
 
+    def longest_joint_gap_s(self) -> float:
+        """The longest interval between the kept joint states [s] (0 with fewer than two)."""
+        if self._jn < 2:
+            return 0.0
+        return float(np.diff(self._jt_buf[:self._jn]).max()) * 1e-9
+
     def distinct_poses(self) -> int:
         """Distinct stationary poses of the run: its windows' joint angles, apart by more
         than 1 mrad in some joint (the plan check of the self-check, and the replay's hint)."""
