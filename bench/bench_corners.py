@@ -125,10 +125,15 @@ FACTORS: dict[str, Factor] = {
     'cmems_simtime': Factor('consumer_mems', 'point', dict(start_stamp_ns=0)),
     # header stamps taken on receipt by the host: IMU and/or joints late by U(0, jitter)
     'nav_imujitter': Factor('nav', config=dict(imu_stamp_jitter_s=2e-3)),
+    'nav_ctl': Factor('nav'),  # the nav cases above without their factor
     'tac_imujitter_point': Factor('tactical', 'point', dict(imu_stamp_jitter_s=3e-3)),
     'indmems_imujitter1000': Factor('industrial_mems', config=dict(
         imu_rate_hz=1000.0, imu_stamp_jitter_s=2e-3)),
     'nav_jointjitter': Factor('nav', config=dict(joint_stamp_jitter_s=5e-3)),
+    'nav_jointjitter1': Factor('nav', config=dict(joint_stamp_jitter_s=1e-3)),
+    'tac_jointjitter1': Factor('tactical', config=dict(joint_stamp_jitter_s=1e-3)),
+    'cmems_jointjitter2': Factor('consumer_mems', config=dict(joint_stamp_jitter_s=2e-3)),
+    'cmems_jointjitter2_ctl': Factor('consumer_mems'),  # the same case without the jitter
     'cmems_bothjitter': Factor('consumer_mems', 'point', dict(
         imu_stamp_jitter_s=4e-3, joint_stamp_jitter_s=8e-3)),
     # a driver that publishes joint states only when a joint moved (silent at the dwells)

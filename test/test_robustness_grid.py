@@ -81,6 +81,14 @@ CASES = [
      'of the size effect\'s omega_dot regressor; the shared noise biased the size effect by '
      '~2 mm (57 sigma with this unit\'s quieter accelerometers), refused. The encoders\' rate '
      'now weighs in by the two noises'),
+    ('nav-imu-receipt-stamps', dict(unit='nav', size=1.0, mount_deg=3.0, imu_rate_hz=200.0,
+                                    seed=11, imu_stamp_jitter_s=2e-3),
+     'IMU stamps taken on receipt, U(0, 2 ms) late: refused (23 of 1,794 updates gated) '
+     'before core.stamp_clock put them back on the IMU\'s clock'),
+    ('nav-joint-receipt-stamps', dict(unit='nav', size=1.0, mount_deg=3.0, seed=12,
+                                      joint_stamp_jitter_s=1e-3),
+     'joint states stamped on receipt, U(0, 1 ms) late at 100 Hz: encoder rates 5 % off, '
+     'refused as "the gyro rates do not follow the fixture\'s joint rotations"'),
 ]
 
 

@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import setting
+from .stamp_clock import StampClock
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -151,6 +152,9 @@ class ImuVerdict:
     keep: NDArray[np.bool_]  # (N,) accepted samples
     long_gaps: IntArray  # indices into the *accepted* samples that follow a long gap
     gaps: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))  # after any gap
+    #: the accepted samples' stamps on the IMU's own clock (:class:`~.stamp_clock.StampClock`:
+    #: stamps taken on receipt), or None when they are the stamps given
+    stamps_ns: IntArray | None = None
 
 
 class InputGuard:
@@ -184,10 +188,14 @@ class InputGuard:
         self.unknown_joint_names: tuple[str, ...] = ()
         self._dts: list[int] = []  # first accepted intervals -> nominal period
         self.nominal_period_ns: int | None = None
+        # stamps taken on receipt, back on the sender's clock (accepted samples only)
+        self.imu_clock = StampClock()
+        self.joint_clock = StampClock()
         self._deg_votes = 0
         self._ok_votes = 0
         self._g_votes = 0
-        self._last_joint: tuple[int, FloatArray] | None = None
+        self._last_joint: tuple[int, FloatArray] | None = None  # the stamp as given
+        self.last_joint_clock_ns = 0  # the last accepted joint stamp on the sender's clock
         # accepted joint samples not yet turned into rates (done lazily, vectorised): chunks
         # of (stamps (k,), positions (k, n)); only the newest PEND_MAX rows are kept
         self._pend: deque[tuple[IntArray, FloatArray]] = deque()
@@ -256,9 +264,10 @@ class InputGuard:
             for i in np.nonzero(counts)[0]:
                 self.rejected[IMU_REASONS[i]] += int(counts[i])
             self.last_event_ns = int(np.maximum(t, prev_max)[~keep].max())
-        long_gaps, gaps = self._gaps(t[keep])
+        kt = self.imu_clock(t[keep])
+        long_gaps, gaps = self._gaps(kt)
         self._log()
-        return ImuVerdict(keep, long_gaps, gaps)
+        return ImuVerdict(keep, long_gaps, gaps, kt if self.imu_clock.smoothing else None)
 
     def _check_one(self, t: int, w: FloatArray, f: FloatArray,
                    frame_id: str) -> ImuVerdict | None:
@@ -266,7 +275,8 @@ class InputGuard:
         None: let the vectorised path classify it (any doubt, a gap, or motion)."""
         cfg = self.config
         last = self.last_stamp_ns
-        if last is not None and t <= last:
+        if (last is not None and t <= last) or not self.imu_clock.decided \
+                or self.imu_clock.smoothing:  # the clock learns, or replaces the stamps
             return None
         if cfg.frame_id and frame_id != cfg.frame_id:
             return None
@@ -379,7 +389,9 @@ class InputGuard:
                 self._reject_joint('joint_out_of_order')
                 return None
         self._last_joint = (int(stamp_ns), q)
-        self._add_pending(np.array([stamp_ns], np.int64), q[None, :])
+        t = self.joint_clock(np.array([stamp_ns], np.int64))
+        self.last_joint_clock_ns = int(t[0])
+        self._add_pending(t, q[None, :])
         return q
 
     def check_joint_batch(self, stamps_ns: Any, names: tuple[str, ...] | list[str],
@@ -428,6 +440,7 @@ class InputGuard:
             self._log()
         if len(t):
             self._last_joint = (int(t[-1]), q[-1])
+            t = self.joint_clock(t)
             self._add_pending(t, q)
         return t, q
 
@@ -482,6 +495,8 @@ class InputGuard:
         self.last_stamp_ns = None
         self.last_kept_ns = None
         self.last_event_ns = None  # a data time of the old time base
+        self.imu_clock.reset()
+        self.joint_clock.reset()
         self._last_joint = None
         self._pend.clear()
         self._pend_rows = 0

@@ -46,6 +46,7 @@ from scipy.spatial.transform import Rotation
 from .. import sensor_model as sm
 from ..errors import InputError
 from ..input_guard import GuardConfig, InputGuard
+from ..stamp_clock import scatter_hint
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
@@ -241,10 +242,11 @@ class CalibrationEstimator:
         """Add one joint-state sample (names in any order; other joints ignored)."""
         q = self._guard.check_joint(int(sample.stamp_ns), tuple(sample.names),
                                     sample.positions_rad)
+        t = self._guard.last_joint_clock_ns  # on the sender's clock (stamps taken on receipt)
         if q is not None and self._boot is not None:
-            self._boot.hold_joints(np.array([sample.stamp_ns], np.int64), q[None, :])
+            self._boot.hold_joints(np.array([t], np.int64), q[None, :])
         elif q is not None:  # joint stamps minus the measured latency: the instants they describe
-            self._joints.append(*self._recorded(int(sample.stamp_ns), q))
+            self._joints.append(*self._recorded(t, q))
         self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
@@ -385,6 +387,12 @@ class CalibrationEstimator:
                 out[f.name] = v if isinstance(v, (bool, int, float, str)) else str(v)
         return out
 
+    def stamp_hint(self) -> str:
+        """A clause naming IMU or joint stamps that scatter about their rate too much to be
+        put back on the sender's clock (:func:`~..stamp_clock.scatter_hint`), or ''."""
+        g = self._guard
+        return scatter_hint({'IMU': g.imu_clock, 'joint': g.joint_clock})
+
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
         the current estimate (frozen at the time of the call)."""
@@ -449,6 +457,8 @@ class CalibrationEstimator:
         if not keep.any():
             return
         t, w, f = t[keep], w[keep], f[keep]
+        if verdict.stamps_ns is not None:  # stamps taken on receipt: the IMU's own clock
+            t = verdict.stamps_ns
         if self._boot is not None:
             self._boot.hold_imu(t, w, f, verdict.gaps, verdict.long_gaps)
             for final, t_cut_ns in self._boot.checks_due():
@@ -673,7 +683,7 @@ class CalibrationEstimator:
         return R_a[None] + (sd / MEAS_SCALE) ** 2 * w_enu[:, :, None] * w_enu[:, None, :]
 
     def _propagate(self, t: NDArray[np.int64], w: FloatArray, f: FloatArray, B: int,
-                   n: int) -> Block:
+                   n: int, ahead_repeated: bool = False) -> Block:
         """:func:`.propagation.propagate_block` of ``B`` chunks of ``n`` samples (plus the
         look-ahead) from the navigator's state with the current estimate."""
         assert self._nav is not None
@@ -683,7 +693,7 @@ class CalibrationEstimator:
                                self._nominal_dt, B, n, self.layout,
                                self.fixture.site.omega_ie_enu, self.fixture.concurrent,
                                (n_g / math.sqrt(self._nominal_dt),
-                                n_a / math.sqrt(self._nominal_dt)))
+                                n_a / math.sqrt(self._nominal_dt)), ahead_repeated)
 
     def _record_history(self, force: bool = False) -> None:
         """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""
@@ -1303,7 +1313,7 @@ class CalibrationEstimator:
         t = np.concatenate([t, t[-1] + step * np.arange(1, h + 1, dtype=np.int64)])
         w = np.vstack([w, np.repeat(w[-1:], h, axis=0)])
         f = np.vstack([f, np.repeat(f[-1:], h, axis=0)])
-        blk = self._propagate(t, w, f, 1, m)
+        blk = self._propagate(t, w, f, 1, m, ahead_repeated=True)
         q = np.diag(q1_s) * blk.T_s[0]
         if blk.q_corner_s is not None:
             q[:6] += blk.q_corner_s[0]

@@ -222,13 +222,14 @@ def _wide_differences(ww: FloatArray, ff: FloatArray, dt_all: FloatArray, h: int
     return out[0] / span, out[1] / span
 
 
-#: a sample whose second difference exceeds this many sigmas of the noise's own (``sqrt(6)``
-#: per-sample sigmas for raw samples) is at a corner of the motion (:func:`corner_variance`)
+#: a third difference beyond this many sigmas of the noise's own (``sqrt(20)`` per-sample
+#: sigmas) marks a corner of the motion (:func:`corner_variance`)
 CORNER_SIGMAS = 4.0
 
 
 def corner_variance(ww: FloatArray, ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray,
-                    h: int, m: int, sigma_w: float, sigma_f: float) -> FloatArray | None:
+                    h: int, m: int, sigma_w: float, sigma_f: float,
+                    gap: NDArray[np.bool_] | None = None) -> FloatArray | None:
     """Attitude and velocity variance per sample [rad^2, (m/s)^2, ENU] (m, 6) that the
     increments carry at corners of the motion, or None when the block has none.
 
@@ -238,28 +239,41 @@ def corner_variance(ww: FloatArray, ff: FloatArray, R_enu_imu: FloatArray, dt: F
     CONTRACT 1 option, and what the plain command reads as a mean, the measured latency taking
     up the half period of smooth motion) cannot say where in its interval the step fell:
     the velocity increment is off by up to ``|J| dt / 2``, variance ``J^2 dt^2 / 12`` for a
-    step placed anywhere. A step shows as second differences of +-J/2 on the two trapezoid
-    means either side of it (+-J on raw samples), so ``sum (d2 dt)^2 / 6`` is that variance for
-    trapezoid means (four times it, conservative, for point samples read as means); a kink of
-    a rate (its angle error ``a dt^2 / 8``) the same way. Only components beyond
-    :data:`CORNER_SIGMAS` of the noise's second difference (``sqrt(6)`` per-sample sigmas
-    ``sigma_w``, ``sigma_f``) count: smooth motion adds nothing, white noise 1.1e-3 of its
-    own velocity variance. Found on a
-    navigation unit at Svalbard (point samples, trapezoid moves): 10 of 7,500 velocity
-    updates gated, all at ramp corners, and the run refused; interval means of the same run
-    gated none.
+    step placed anywhere. Smooth motion curves the samples too (gravity turning through the
+    IMU at 3 rad/s: second differences of 9e-3 m/s^2 at 100 Hz, seven navigation-grade noise
+    sigmas), which the trapezoid holds to the third derivative times dt^3; a step is what
+    changes the curvature at once. So the third differences ``d3``: a step makes
+    ``J/2 (1, -1, -1, 1)`` of the trapezoid means (``J (1, -2, 1)`` of raw samples read as
+    means), and ``sum (d3 dt)^2 / 12`` is the step's variance (six times it, conservative, for
+    the raw samples); a kink of a rate (angle error ``a dt^2 / 8``) the same way. Only
+    components beyond :data:`CORNER_SIGMAS` of the noise's own third difference (``sqrt(20)``
+    per-sample sigmas ``sigma_w``, ``sigma_f``) count: smooth motion adds nothing, white noise
+    1.9e-3 of its own velocity variance. A corner within a sample of the block's edge is not
+    seen (one sample in a block of hundreds). Found on a navigation unit at Svalbard (point
+    samples, trapezoid moves): 10 of 7,500 velocity updates gated, all at ramp corners, and
+    the run refused; interval means of the same run gated none.
 
     ``ww``, ``ff``: the block's rates and specific forces with ``h`` rows of history before
     and ``h`` of look-ahead after its ``m`` samples; ``R_enu_imu`` (m, 3, 3) the navigated
-    attitude at each sample, ``dt`` (m,) their intervals."""
-    d2 = np.hstack([ww[h + 1:h + m + 1] - 2.0 * ww[h:h + m] + ww[h - 1:h + m - 1],
-                    ff[h + 1:h + m + 1] - 2.0 * ff[h:h + m] + ff[h - 1:h + m - 1]])
-    d2 *= d2
-    thr = (CORNER_SIGMAS ** 2 * 6.0) * np.repeat([sigma_w ** 2, sigma_f ** 2], 3)
-    hit = d2 > thr
+    attitude at each sample, ``dt`` (m,) their intervals; ``gap`` (m + 2 h - 1,): the
+    intervals between the rows that are gaps; differences across one are left out (what a gap
+    loses is widened for by the gap handling; counted here too, a motion bridge's sigmas came
+    out 22 % above those of the run without the gap)."""
+    x = np.hstack([ww, ff])  # (m + 2 h, 6)
+    d3_all = np.diff(x, n=3, axis=0)  # value k: rows k .. k + 3, intervals k .. k + 2
+    if gap is not None and gap.any():
+        d3_all[gap[:-2] | gap[1:-1] | gap[2:]] = 0.0
+    # sample i (row h + i) takes the value of rows h + i - 2 .. h + i + 1
+    d3 = np.zeros((m, 6))
+    lo = max(0, 2 - h)
+    hi = min(m, len(d3_all) - h + 2)
+    d3[lo:hi] = d3_all[h + lo - 2:h + hi - 2]
+    d3 *= d3
+    thr = (CORNER_SIGMAS ** 2 * 20.0) * np.repeat([sigma_w ** 2, sigma_f ** 2], 3)
+    hit = d3 > thr
     if not hit.any():
         return None
-    var = np.where(hit, d2, 0.0) * (dt * dt / 6.0)[:, None]  # (m, 6) in the IMU frame
+    var = np.where(hit, d3, 0.0) * (dt * dt / 12.0)[:, None]  # (m, 6) in the IMU frame
     R2 = R_enu_imu * R_enu_imu  # diag(R diag(v) R^T) = (R o R) v
     return np.hstack([np.einsum('nij,nj->ni', R2, var[:, :3]),
                       np.einsum('nij,nj->ni', R2, var[:, 3:])])
@@ -289,7 +303,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
                     w: FloatArray, f: FloatArray, nominal_dt_s: float, B: int, n: int,
                     layout: StateLayout, omega_ie_enu_rad_s: FloatArray,
                     table: bool = False,
-                    noise_sigma: tuple[float, float] | None = None) -> Block:
+                    noise_sigma: tuple[float, float] | None = None,
+                    ahead_repeated: bool = False) -> Block:
     """Propagate ``nav`` (in place) over ``B`` chunks of ``n`` samples.
 
     Parameters
@@ -315,6 +330,9 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     noise_sigma :
         Per-sample white-noise sigmas (gyro rad/s, accel m/s^2): with them, the navigation
         variance at corners of the motion (:func:`corner_variance`) in ``Block.q_corner_s``.
+    ahead_repeated :
+        The look-ahead rows repeat the last sample (no data after it yet): like the history
+        rows copied at the first block after an alignment, not a corner of the motion.
     """
     m = B * n
     nom = nominal_dt_s
@@ -381,7 +399,12 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     ends = np.arange(n - 1, m, n)
     q_corner = None
     if noise_sigma is not None:
-        var = corner_variance(ww, ff, out.R_enu_imu, dt, h, m, *noise_sigma)
+        made_up = gap.copy()  # rows that are copies, not samples: no corner across them
+        if prev is None:
+            made_up[:h] = True
+        if ahead_repeated:
+            made_up[-h:] = True
+        var = corner_variance(ww, ff, out.R_enu_imu, dt, h, m, *noise_sigma, gap=made_up)
         if var is not None:
             q_corner = var.reshape(B, n, 6).sum(axis=1) / (s[None, 0:6] ** 2)
     return Block(rows_s=rows_s, T_s=dt.reshape(B, n).sum(axis=1), ends=ends,

@@ -252,16 +252,22 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
     ledger = RunLedger(est)
     batches = samples.batches() if callable(getattr(samples, 'batches', None)) \
         else _batches_of_samples(samples, batch)
-    for b in batches:
-        if isinstance(b, ImuBatch):
-            ledger.imu(b)
-            est.push_imu_batch(b)
-            if progress is not None:
-                progress(len(b))
-        else:
-            ledger.joints(b)
-            est.push_joint_batch(b)
-    est.flush()
+    try:
+        for b in batches:
+            if isinstance(b, ImuBatch):
+                ledger.imu(b)
+                est.push_imu_batch(b)
+                if progress is not None:
+                    progress(len(b))
+            else:
+                ledger.joints(b)
+                est.push_joint_batch(b)
+        est.flush()
+    except InputError as exc:  # stamps taken on receipt may be why: say so on the same line
+        hint = est.stamp_hint()
+        if hint and hint not in str(exc):
+            raise InputError(f'{exc}{hint}') from None
+        raise
     c = est.counters
     if c['imu_samples'] == 0:
         raise InputError('no IMU samples in the input: check --imu-topic')
@@ -286,7 +292,8 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
     if health['status'] == 'ERROR':
         # A diverged filter never becomes a calibration file (issue 6).
         raise InputError(f'the estimator diverged ({health["divergence_reason"]}); no '
-                         'calibration written: check the IMU grade, units and the fixture file')
+                         'calibration written: check the IMU grade, units and the fixture file'
+                         + est.stamp_hint())
     return est, ledger
 
 
