@@ -18,8 +18,8 @@ Case names are ``UNIT@FIXTURE_sSEED``. Per case: exit status, the command's last
 when it is not 0, max |error/sigma| with its parameter, the count beyond 3 sigma, and the
 diagonal NEES over the estimated parameters; then ``SUMMARY``: cases passed (exit 0, nothing
 beyond 4 sigma, no held parameter beyond 3 assumed sigma; on a table that cannot calibrate a
-raw unit, :data:`EXPECT_REFUSAL`, the self-check's refusal naming why), exits non-zero,
-tracebacks, beyond 3 sigma against what an honest filter gives. Not a test: it prints figures.
+raw unit, :data:`EXPECT_REFUSAL`, a refusal naming why: the self-check's, or a
+divergence's), exits non-zero, tracebacks, beyond 3 sigma against what an honest filter gives. Not a test: it prints figures.
 """
 from __future__ import annotations
 
@@ -120,8 +120,8 @@ def passed(r: dict[str, Any]) -> bool:
     :data:`EXPECT_REFUSAL` or a plan too weak for a raw unit (:func:`plan_reach`), the
     refusal (exit 3 naming why)."""
     refusal = expected_refusal(r['name'])
-    if refusal:
-        return r['status'] == 3 and refusal in r['last_stderr']
+    if refusal:  # the self-check's refusal, or a divergence's line naming the plan
+        return r['status'] in (2, 3) and refusal in r['last_stderr']
     return r['status'] == 0 and r.get('beyond4', 1) == 0 and not r.get('held_bad')
 
 

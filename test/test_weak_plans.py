@@ -177,3 +177,22 @@ def test_a_plan_that_keeps_an_accelerometer_horizontal_leaves_its_scale_honest(
     z = {n: round(rows[n].z, 2) for n in ('accel_scale[z]', 'accel_misalignment[zx]',
                                           'accel_misalignment[zy]')}
     assert max(abs(v) for v in z.values()) <= 4.0, z
+
+
+def test_a_divergence_on_a_weak_plan_names_the_plan() -> None:
+    """A run that diverges never reaches the self-check's 'plan' rule: the divergence's line
+    names the direction the plan never stood up (found on a lab's vertical/horizontal table,
+    whose tactical unit diverged with 'check the IMU grade, units and the fixture file')."""
+    from imu_calib_ros.core.estimator.replay import _weak_plan
+
+    class Ledger:
+        def __init__(self, reach: float, v: tuple[float, ...]) -> None:
+            self.r = (reach, v)
+
+        def accel_reach(self) -> tuple[float, tuple[float, ...]]:
+            return self.r
+    line = _weak_plan(Ledger(0.0024, (0.75, -0.67, 0.01)))
+    assert line.startswith('the plan never stands the IMU direction (0.75, -0.67, 0.01) '
+                           'within 60 deg of vertical'), line
+    assert _weak_plan(Ledger(0.8, (0.0, 0.0, 1.0))) == ''
+    assert _weak_plan(Ledger(1.0, ())) == ''

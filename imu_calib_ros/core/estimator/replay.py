@@ -292,9 +292,23 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
     if health['status'] == 'ERROR':
         # A diverged filter never becomes a calibration file (issue 6).
         raise InputError(f'the estimator diverged ({health["divergence_reason"]}); no '
-                         'calibration written: check the IMU grade, units and the fixture file'
-                         + est.stamp_hint())
+                         f'calibration written: {_weak_plan(ledger)}check the IMU grade, '
+                         'units and the fixture file' + est.stamp_hint())
     return est, ledger
+
+
+def _weak_plan(ledger: RunLedger) -> str:
+    """A divergence's likelier cause when the run's stationary poses never stood some IMU
+    direction near vertical (the self-check's 'plan' rule, which a diverged run never
+    reaches), as the start of the advice, or ''."""
+    from .coarse import MIN_ACCEL_REACH
+    from .selfcheck import direction_name
+    reach, v = ledger.accel_reach()
+    if not v or reach >= MIN_ACCEL_REACH:
+        return ''
+    return (f'the plan never stands {direction_name(v)} within 60 deg of vertical (at most '
+            f'{reach:.2g} of gravity along it), so an uncalibrated unit\'s errors along it '
+            'cannot be determined on this plan or table; else ')
 
 
 def replay(open_samples: Callable[[], Any], fixture: Fixture, grade: ImuGrade | None,

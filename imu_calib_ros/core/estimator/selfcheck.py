@@ -233,7 +233,7 @@ def _plain(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _direction_name(v: tuple[float, ...]) -> str:
+def direction_name(v: tuple[float, ...]) -> str:
     """'accelerometer x' for a direction within 1 deg of an IMU axis, else 'the IMU direction
     (0.71, -0.71, 0.00)' (the accelerometers' response along it), with ', near
     accelerometer z,' when within 15 deg of one."""
@@ -277,7 +277,7 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
         reach, v = ev.plan_accel_reach
         flat = ev.plan_poses >= 2 and len(v) == 3 and reach < cfg.min_accel_reach
         lacks = (['turns about fewer than three IMU axes'] if ev.plan_axes_short else []) + (
-            [f'never stands {_direction_name(v)} within 60 deg of vertical (at most '
+            [f'never stands {direction_name(v)} within 60 deg of vertical (at most '
              f'{reach:.2g} of gravity along it)'] if flat else [])
         checks.append(Check('plan', not lacks, ev.plan_poses, cfg.min_plan_poses,
                             f'an uncalibrated unit on a plan that {few}{" and ".join(lacks)}: '
