@@ -19,7 +19,8 @@ when it is not 0, max |error/sigma| with its parameter, the count beyond 3 sigma
 diagonal NEES over the estimated parameters; then ``SUMMARY``: cases passed (exit 0, nothing
 beyond 4 sigma, no held parameter beyond 3 assumed sigma; on a table that cannot calibrate a
 raw unit, :data:`EXPECT_REFUSAL`, a refusal naming why: the self-check's, or a
-divergence's), exits non-zero, tracebacks, beyond 3 sigma against what an honest filter gives. Not a test: it prints figures.
+divergence's), exits non-zero, tracebacks, beyond 3 sigma against what an honest filter
+gives. Not a test: it prints figures.
 """
 from __future__ import annotations
 
