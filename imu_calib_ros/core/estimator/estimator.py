@@ -627,7 +627,7 @@ class CalibrationEstimator:
         for b in range(B):
             q_b = q1_diag_s * blk.T_s[b]
             if blk.q_corner_s is not None:  # corners of the motion (propagation)
-                q_b[:6] += blk.q_corner_s[b]
+                q_b[3:6] += blk.q_corner_s[b]
             filt.predict_rows(blk.rows_s[b], q_b)
             while self._gap_widening and self._gap_widening[0][1] <= t_ends[b]:
                 _, _, var_att, var_vel = self._gap_widening.pop(0)
@@ -688,12 +688,11 @@ class CalibrationEstimator:
         look-ahead) from the navigator's state with the current estimate."""
         assert self._nav is not None
         tau = self._theta_a[em.accel_cols('time_offset')][0]
-        n_g, n_a = self._process_noise.white
         return propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
                                self._nominal_dt, B, n, self.layout,
                                self.fixture.site.omega_ie_enu, self.fixture.concurrent,
-                               (n_g / math.sqrt(self._nominal_dt),
-                                n_a / math.sqrt(self._nominal_dt)), ahead_repeated)
+                               self._process_noise.white[1] / math.sqrt(self._nominal_dt),
+                               ahead_repeated, self.config.imu_sample_type == 'point')
 
     def _record_history(self, force: bool = False) -> None:
         """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""
@@ -1316,7 +1315,7 @@ class CalibrationEstimator:
         blk = self._propagate(t, w, f, 1, m, ahead_repeated=True)
         q = np.diag(q1_s) * blk.T_s[0]
         if blk.q_corner_s is not None:
-            q[:6] += blk.q_corner_s[0]
+            q[3:6] += blk.q_corner_s[0]
         self._filter.predict_rows(blk.rows_s[0], q)
         if blk.n_gaps:
             widen_for_gaps(self._filter.P, self.layout, blk.n_gaps)

@@ -47,7 +47,7 @@ class Block:
     v_enu_end_m_s: FloatArray  # (B, 3) navigated velocity at the chunk ends
     omega_ib_end_rad_s: FloatArray  # (B, 3) compensated rate at the chunk-end instants
     n_gaps: int  # intervals longer than 1.5 nominal periods
-    q_corner_s: FloatArray | None = None  # (B, 6) navigation variance at corners, scaled
+    q_corner_s: FloatArray | None = None  # (B, 3) velocity variance at corners, scaled
 
 
 #: Relative change at which the compensation has converged (``sensor_model``'s, a few ulps).
@@ -224,14 +224,14 @@ def _wide_differences(ww: FloatArray, ff: FloatArray, dt_all: FloatArray, h: int
 
 #: a third difference beyond this many sigmas of the noise's own (``sqrt(20)`` per-sample
 #: sigmas) marks a corner of the motion (:func:`corner_variance`)
-CORNER_SIGMAS = 4.0
+CORNER_SIGMAS = 5.0
 
 
-def corner_variance(ww: FloatArray, ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray,
-                    h: int, m: int, sigma_w: float, sigma_f: float,
-                    gap: NDArray[np.bool_] | None = None) -> FloatArray | None:
-    """Attitude and velocity variance per sample [rad^2, (m/s)^2, ENU] (m, 6) that the
-    increments carry at corners of the motion, or None when the block has none.
+def corner_variance(ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray, h: int, m: int,
+                    sigma_f: float, gap: NDArray[np.bool_] | None = None,
+                    trapezoid: bool = False) -> FloatArray | None:
+    """Velocity variance per sample [(m/s)^2, ENU axes] (m, 3) that the increments carry at
+    corners of the motion, or None when the block has none.
 
     A table's joint acceleration jumps at the corners of a trapezoidal rate profile, and the
     specific force of a point off the axes jumps with it (``alpha x r``: 0.1 m/s^2 at
@@ -243,40 +243,47 @@ def corner_variance(ww: FloatArray, ff: FloatArray, R_enu_imu: FloatArray, dt: F
     IMU at 3 rad/s: second differences of 9e-3 m/s^2 at 100 Hz, seven navigation-grade noise
     sigmas), which the trapezoid holds to the third derivative times dt^3; a step is what
     changes the curvature at once. So the third differences ``d3``: a step makes
-    ``J/2 (1, -1, -1, 1)`` of the trapezoid means (``J (1, -2, 1)`` of raw samples read as
-    means), and ``sum (d3 dt)^2 / 12`` is the step's variance (six times it, conservative, for
-    the raw samples); a kink of a rate (angle error ``a dt^2 / 8``) the same way. Only
-    components beyond :data:`CORNER_SIGMAS` of the noise's own third difference (``sqrt(20)``
-    per-sample sigmas ``sigma_w``, ``sigma_f``) count: smooth motion adds nothing, white noise
-    1.9e-3 of its own velocity variance. A corner within a sample of the block's edge is not
-    seen (one sample in a block of hundreds). Found on a navigation unit at Svalbard (point
-    samples, trapezoid moves): 10 of 7,500 velocity updates gated, all at ramp corners, and
-    the run refused; interval means of the same run gated none.
+    ``J/2 (1, -1, -1, 1)`` of the trapezoid means of declared point samples (``trapezoid``),
+    ``J (1, -2, 1)`` of point samples read as means (the latency measured on smooth motion
+    takes up their half period, which leaves ``J dt (s - 1/2)``), so ``sum (d3 dt)^2 / 12``,
+    respectively ``/ 72``, is the step's variance ``J^2 dt^2 / 12``. Interval means hold a step
+    exactly, and one at a sample instant looks like a point sample's: it is widened too, by
+    what a point sample would miss (the corners also strain the navigator's and the
+    ``omega_dot`` regressors' polynomial assumptions: a navigation unit's innovations there
+    had doubled its bias walk before). Only components beyond :data:`CORNER_SIGMAS` of the
+    noise's own third difference (``sqrt(20)`` per-sample sigmas ``sigma_f``) count: smooth motion adds
+    nothing, white noise 3e-5 of its own velocity variance (at 4 sigmas an industrial MEMS
+    unit's heavier-tailed noise passed 13 times as often as a normal one's, and the widening
+    moved its bias walk's adaptation). The rates are left alone: a kink of a rate costs a point
+    sample ``a dt^2 / 8`` of angle, a second-order term the grid's point-sample runs never
+    showed, while widening the attitude at every Kozlov oscillation's start (a rate kink that
+    interval means, the CONTRACT default, hold exactly) kept a navigation unit's bias walk
+    from adapting (accelerometer bias 3.1 sigma off in the grid). A corner within a sample of
+    the block's edge is not seen (one sample in a block of hundreds). Found on a navigation
+    unit at Svalbard (point samples, trapezoid moves): 10 of 7,500 velocity updates gated, all
+    at ramp corners, and the run refused; interval means of the same run gated none.
 
-    ``ww``, ``ff``: the block's rates and specific forces with ``h`` rows of history before
-    and ``h`` of look-ahead after its ``m`` samples; ``R_enu_imu`` (m, 3, 3) the navigated
-    attitude at each sample, ``dt`` (m,) their intervals; ``gap`` (m + 2 h - 1,): the
-    intervals between the rows that are gaps; differences across one are left out (what a gap
-    loses is widened for by the gap handling; counted here too, a motion bridge's sigmas came
-    out 22 % above those of the run without the gap)."""
-    x = np.hstack([ww, ff])  # (m + 2 h, 6)
-    d3_all = np.diff(x, n=3, axis=0)  # value k: rows k .. k + 3, intervals k .. k + 2
+    ``ff``: the block's specific forces with ``h`` rows of history before and ``h`` of
+    look-ahead after its ``m`` samples; ``R_enu_imu`` (m, 3, 3) the navigated attitude at each
+    sample, ``dt`` (m,) their intervals; ``gap`` (m + 2 h - 1,): the intervals between the rows
+    that are gaps or made-up rows; differences across one are left out (what a gap loses is
+    widened for by the gap handling; counted here too, a motion bridge's sigmas came out 22 %
+    above those of the run without the gap)."""
+    d3_all = np.diff(ff, n=3, axis=0)  # value k: rows k .. k + 3, intervals k .. k + 2
     if gap is not None and gap.any():
         d3_all[gap[:-2] | gap[1:-1] | gap[2:]] = 0.0
     # sample i (row h + i) takes the value of rows h + i - 2 .. h + i + 1
-    d3 = np.zeros((m, 6))
+    d3 = np.zeros((m, 3))
     lo = max(0, 2 - h)
     hi = min(m, len(d3_all) - h + 2)
     d3[lo:hi] = d3_all[h + lo - 2:h + hi - 2]
     d3 *= d3
-    thr = (CORNER_SIGMAS ** 2 * 20.0) * np.repeat([sigma_w ** 2, sigma_f ** 2], 3)
-    hit = d3 > thr
+    hit = d3 > CORNER_SIGMAS ** 2 * 20.0 * sigma_f ** 2
     if not hit.any():
         return None
-    var = np.where(hit, d3, 0.0) * (dt * dt / 12.0)[:, None]  # (m, 6) in the IMU frame
-    R2 = R_enu_imu * R_enu_imu  # diag(R diag(v) R^T) = (R o R) v
-    return np.hstack([np.einsum('nij,nj->ni', R2, var[:, :3]),
-                      np.einsum('nij,nj->ni', R2, var[:, 3:])])
+    k = 12.0 if trapezoid else 72.0  # J^2 dt^2 / 12 from either step pattern
+    var = np.where(hit, d3, 0.0) * (dt * dt / k)[:, None]  # (m, 3) in the IMU frame
+    return np.einsum('nij,nj->ni', R_enu_imu * R_enu_imu, var)  # diag(R diag(v) R^T)
 
 
 def table_specific_force(R_enu_imu: FloatArray, f_enu_m_s2: FloatArray) -> FloatArray:
@@ -303,8 +310,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
                     w: FloatArray, f: FloatArray, nominal_dt_s: float, B: int, n: int,
                     layout: StateLayout, omega_ie_enu_rad_s: FloatArray,
                     table: bool = False,
-                    noise_sigma: tuple[float, float] | None = None,
-                    ahead_repeated: bool = False) -> Block:
+                    accel_sigma: float | None = None,
+                    ahead_repeated: bool = False, trapezoid: bool = False) -> Block:
     """Propagate ``nav`` (in place) over ``B`` chunks of ``n`` samples.
 
     Parameters
@@ -327,12 +334,14 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     table :
         The fixture is a table (concurrent axes): the Jacobians' specific force is
         :func:`table_specific_force`.
-    noise_sigma :
-        Per-sample white-noise sigmas (gyro rad/s, accel m/s^2): with them, the navigation
+    accel_sigma :
+        Per-sample white-noise sigma of the accelerometers [m/s^2]: with it, the velocity
         variance at corners of the motion (:func:`corner_variance`) in ``Block.q_corner_s``.
     ahead_repeated :
         The look-ahead rows repeat the last sample (no data after it yet): like the history
         rows copied at the first block after an alignment, not a corner of the motion.
+    trapezoid :
+        The samples are trapezoid means of declared point samples (:func:`corner_variance`).
     """
     m = B * n
     nom = nominal_dt_s
@@ -398,15 +407,16 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     rows_s = rows * (s[None, None, :] / s[None, 0:6, None])
     ends = np.arange(n - 1, m, n)
     q_corner = None
-    if noise_sigma is not None:
+    if accel_sigma is not None:
         made_up = gap.copy()  # rows that are copies, not samples: no corner across them
         if prev is None:
             made_up[:h] = True
         if ahead_repeated:
             made_up[-h:] = True
-        var = corner_variance(ww, ff, out.R_enu_imu, dt, h, m, *noise_sigma, gap=made_up)
+        var = corner_variance(ff, out.R_enu_imu, dt, h, m, accel_sigma, gap=made_up,
+                              trapezoid=trapezoid)
         if var is not None:
-            q_corner = var.reshape(B, n, 6).sum(axis=1) / (s[None, 0:6] ** 2)
+            q_corner = var.reshape(B, n, 3).sum(axis=1) / (s[None, 3:6] ** 2)
     return Block(rows_s=rows_s, T_s=dt.reshape(B, n).sum(axis=1), ends=ends,
                  R_enu_imu_end=out.R_enu_imu[ends], v_enu_end_m_s=out.v_enu_m_s[ends],
                  omega_ib_end_rad_s=0.5 * (w_c[ends] + w_c[ends + 1]), n_gaps=n_gaps,
