@@ -251,8 +251,8 @@ def corner_variance(ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray, h: in
     what a point sample would miss (the corners also strain the navigator's and the
     ``omega_dot`` regressors' polynomial assumptions: a navigation unit's innovations there
     had doubled its bias walk before). Only components beyond :data:`CORNER_SIGMAS` of the
-    noise's own third difference (``sqrt(20)`` per-sample sigmas ``sigma_f``) count: smooth motion adds
-    nothing, white noise 3e-5 of its own velocity variance (at 4 sigmas an industrial MEMS
+    noise's own third difference (``sqrt(20)`` per-sample sigmas ``sigma_f``) count: smooth
+    motion adds nothing, white noise 3e-5 of its own velocity variance (at 4 sigmas an industrial MEMS
     unit's heavier-tailed noise passed 13 times as often as a normal one's, and the widening
     moved its bias walk's adaptation). The rates are left alone: a kink of a rate costs a point
     sample ``a dt^2 / 8`` of angle, a second-order term the grid's point-sample runs never
