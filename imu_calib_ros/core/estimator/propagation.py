@@ -230,45 +230,44 @@ CORNER_SIGMAS = 5.0
 def corner_variance(ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray, h: int, m: int,
                     sigma_f: float, gap: NDArray[np.bool_] | None = None,
                     trapezoid: bool = False) -> FloatArray | None:
-    """Velocity variance per sample [(m/s)^2, ENU axes] (m, 3) that the increments carry at
-    corners of the motion, or None when the block has none.
+    """Velocity variance per sample [(m/s)^2, ENU axes] (m, 3) that the increments carry at corners
+    of the motion, or None when the block has none.
 
     A table's joint acceleration jumps at the corners of a trapezoidal rate profile, and the
-    specific force of a point off the axes jumps with it (``alpha x r``: 0.1 m/s^2 at
-    2 rad/s^2 and 45 mm). An interval mean holds the step exactly, but a point sample (a
-    CONTRACT 1 option, and what the plain command reads as a mean, the measured latency taking
-    up the half period of smooth motion) cannot say where in its interval the step fell:
-    the velocity increment is off by up to ``|J| dt / 2``, variance ``J^2 dt^2 / 12`` for a
-    step placed anywhere. Smooth motion curves the samples too (gravity turning through the
-    IMU at 3 rad/s: second differences of 9e-3 m/s^2 at 100 Hz, seven navigation-grade noise
-    sigmas), which the trapezoid holds to the third derivative times dt^3; a step is what
-    changes the curvature at once. So the third differences ``d3``: a step makes
-    ``J/2 (1, -1, -1, 1)`` of the trapezoid means of declared point samples (``trapezoid``),
-    ``J (1, -2, 1)`` of point samples read as means (the latency measured on smooth motion
-    takes up their half period, which leaves ``J dt (s - 1/2)``), so ``sum (d3 dt)^2 / 12``,
-    respectively ``/ 72``, is the step's variance ``J^2 dt^2 / 12``. Interval means hold a step
-    exactly, and one at a sample instant looks like a point sample's: it is widened too, by
-    what a point sample would miss (the corners also strain the navigator's and the
-    ``omega_dot`` regressors' polynomial assumptions: a navigation unit's innovations there
-    had doubled its bias walk before). Only components beyond :data:`CORNER_SIGMAS` of the
-    noise's own third difference (``sqrt(20)`` per-sample sigmas ``sigma_f``) count: smooth
-    motion adds nothing, white noise 3e-5 of its own velocity variance (at 4 sigmas an industrial MEMS
-    unit's heavier-tailed noise passed 13 times as often as a normal one's, and the widening
-    moved its bias walk's adaptation). The rates are left alone: a kink of a rate costs a point
-    sample ``a dt^2 / 8`` of angle, a second-order term the grid's point-sample runs never
-    showed, while widening the attitude at every Kozlov oscillation's start (a rate kink that
-    interval means, the CONTRACT default, hold exactly) kept a navigation unit's bias walk
-    from adapting (accelerometer bias 3.1 sigma off in the grid). A corner within a sample of
-    the block's edge is not seen (one sample in a block of hundreds). Found on a navigation
-    unit at Svalbard (point samples, trapezoid moves): 10 of 7,500 velocity updates gated, all
-    at ramp corners, and the run refused; interval means of the same run gated none.
+    specific force of a point off the axes jumps with it (``alpha x r``: 0.1 m/s^2 at 2 rad/s^2 and
+    45 mm). An interval mean holds the step exactly, but a point sample (a CONTRACT 1 option, and
+    what the plain command reads as a mean, the measured latency taking up the half period of
+    smooth motion) cannot say where in its interval the step fell: the velocity increment is off by
+    up to ``|J| dt / 2``, variance ``J^2 dt^2 / 12`` for a step placed anywhere. Smooth motion
+    curves the samples too (gravity turning through the IMU at 3 rad/s: second differences of 9e-3
+    m/s^2 at 100 Hz, seven navigation-grade noise sigmas), which the trapezoid holds to the third
+    derivative times dt^3; a step is what changes the curvature at once. So the third differences
+    ``d3``: a step makes ``J/2 (1, -1, -1, 1)`` of the trapezoid means of declared point samples
+    (``trapezoid``), ``J (1, -2, 1)`` of point samples read as means (the latency measured on
+    smooth motion takes up their half period, which leaves ``J dt (s - 1/2)``), so ``sum (d3 dt)^2
+    / 12``, respectively ``/ 72``, is the step's variance ``J^2 dt^2 / 12``. Interval means hold a
+    step exactly, and one at a sample instant looks like a point sample's: it is widened too, by
+    what a point sample would miss (the corners also strain the navigator's and the ``omega_dot``
+    regressors' polynomial assumptions: a navigation unit's innovations there had doubled its bias
+    walk before). Only components beyond :data:`CORNER_SIGMAS` of the noise's own third difference
+    (``sqrt(20)`` per-sample sigmas ``sigma_f``) count: smooth motion adds nothing, white noise
+    3e-5 of its own velocity variance (at 4 sigmas an industrial MEMS unit's heavier-tailed noise
+    passed 13 times as often as a normal one's, and the widening moved its bias walk's adaptation).
+    The rates are left alone: a kink of a rate costs a point sample ``a dt^2 / 8`` of angle, a
+    second-order term the grid's point-sample runs never showed, while widening the attitude at
+    every Kozlov oscillation's start (a rate kink that interval means, the CONTRACT default, hold
+    exactly) kept a navigation unit's bias walk from adapting (accelerometer bias 3.1 sigma off in
+    the grid). A corner within a sample of the block's edge is not seen (one sample in a block of
+    hundreds). Found on a navigation unit at Svalbard (point samples, trapezoid moves): 10 of 7,500
+    velocity updates gated, all at ramp corners, and the run refused; interval means of the same
+    run gated none.
 
-    ``ff``: the block's specific forces with ``h`` rows of history before and ``h`` of
-    look-ahead after its ``m`` samples; ``R_enu_imu`` (m, 3, 3) the navigated attitude at each
-    sample, ``dt`` (m,) their intervals; ``gap`` (m + 2 h - 1,): the intervals between the rows
-    that are gaps or made-up rows; differences across one are left out (what a gap loses is
-    widened for by the gap handling; counted here too, a motion bridge's sigmas came out 22 %
-    above those of the run without the gap)."""
+    ``ff``: the block's specific forces with ``h`` rows of history before and ``h`` of look-ahead
+    after its ``m`` samples; ``R_enu_imu`` (m, 3, 3) the navigated attitude at each sample, ``dt``
+    (m,) their intervals; ``gap`` (m + 2 h - 1,): the intervals between the rows that are gaps or
+    made-up rows; differences across one are left out (what a gap loses is widened for by the gap
+    handling; counted here too, a motion bridge's sigmas came out 22 % above those of the run
+    without the gap)."""
     d3_all = np.diff(ff, n=3, axis=0)  # value k: rows k .. k + 3, intervals k .. k + 2
     if gap is not None and gap.any():
         d3_all[gap[:-2] | gap[1:-1] | gap[2:]] = 0.0
