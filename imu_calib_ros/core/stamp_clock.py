@@ -142,6 +142,7 @@ class StampClock:
         s = (t - self._base_s).astype(float)
         self._hist_k, self._hist_s = k[-self.window:], s[-self.window:]
         self._k_last, self._s_last = float(k[-1]), int(t[-1])
+        self._last_out = int(t[-1])  # the learnt stamps went out as given: never behind them
         self._bad = np.abs(resid) > 0.4 * p0
         # the median interval is a coarse period (dropped messages move it by tens of us):
         # the least-squares slope over the counted periods first, then the envelope
