@@ -55,6 +55,13 @@ WINDOW = 4096
 REFIT_SAMPLES = 256
 
 
+def period_counts(d: FloatArray, period: float) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Intervals ``d`` [ns] as whole periods (a dropped message: more than one), and which
+    lie further than 0.4 periods from their count (delays a count cannot be sure of)."""
+    n = np.maximum(1.0, np.rint(d / period))
+    return n, np.abs(d - n * period) > 0.4 * period
+
+
 def envelope_line(k: FloatArray, s: FloatArray, period: float) -> tuple[float, float, float]:
     """The line ``a + P (k - c)`` under every point ``(k_i, s_i)`` that is highest at their
     centroid ``c`` (the supporting line of their lower convex hull there): ``(a, P, c)``.
@@ -127,11 +134,10 @@ class StampClock:
         if len(d) < 8 or np.median(d) <= 0:
             return
         p0 = float(np.median(d))
-        n = np.maximum(1.0, np.rint(d / p0))
-        resid = d - n * p0
+        n, bad = period_counts(d, p0)
         self.period_ns = p0
-        self.jitter_ns = 1.4826 * float(np.median(np.abs(resid)))
-        if np.mean(np.abs(resid) > 0.4 * p0) > IRREGULAR_SHARE:
+        self.jitter_ns = 1.4826 * float(np.median(np.abs(d - n * p0)))
+        if bad.mean() > IRREGULAR_SHARE:
             self.irregular = True
             return
         if self.jitter_ns <= JITTER_FRACTION * p0:
@@ -143,7 +149,7 @@ class StampClock:
         self._hist_k, self._hist_s = k[-self.window:], s[-self.window:]
         self._k_last, self._s_last = float(k[-1]), int(t[-1])
         self._last_out = int(t[-1])  # the learnt stamps went out as given: never behind them
-        self._bad = np.abs(resid) > 0.4 * p0
+        self._bad = bad
         # the median interval is a coarse period (dropped messages move it by tens of us):
         # the least-squares slope over the counted periods first, then the envelope
         self.period_ns = float(np.polyfit(k, s, 1)[0])
@@ -161,10 +167,8 @@ class StampClock:
             self._hist_k, self._hist_s = np.zeros(0), np.zeros(0)
             self._line = (0.0, self.period_ns, 0.0)  # anchored on the first stamp
             self._since_fit = 0
-        P = self.period_ns
         d = np.diff(np.concatenate([[self._s_last], t])).astype(float)
-        n = np.maximum(1.0, np.rint(d / P))
-        bad = np.abs(d - n * P) > 0.4 * P
+        n, bad = period_counts(d, self.period_ns)
         self._bad = np.concatenate([self._bad, bad])[-self.window:]
         if len(self._bad) >= 256 and self._bad.mean() > IRREGULAR_SHARE:
             self.irregular, self.smoothing = True, False  # no longer periodic: as given

@@ -625,10 +625,7 @@ class CalibrationEstimator:
         q1_diag_s = np.diag(q1_s)
         t_ends = t[blk.ends]
         for b in range(B):
-            q_b = q1_diag_s * blk.T_s[b]
-            if blk.q_corner_s is not None:  # corners of the motion (propagation)
-                q_b[3:6] += blk.q_corner_s[b]
-            filt.predict_rows(blk.rows_s[b], q_b)
+            filt.predict_rows(blk.rows_s[b], blk.chunk_noise_s(q1_diag_s, b))
             while self._gap_widening and self._gap_widening[0][1] <= t_ends[b]:
                 _, _, var_att, var_vel = self._gap_widening.pop(0)
                 widen_navigation(filt.P, lay, var_att, var_vel)
@@ -1313,10 +1310,7 @@ class CalibrationEstimator:
         w = np.vstack([w, np.repeat(w[-1:], h, axis=0)])
         f = np.vstack([f, np.repeat(f[-1:], h, axis=0)])
         blk = self._propagate(t, w, f, 1, m, ahead_repeated=True)
-        q = np.diag(q1_s) * blk.T_s[0]
-        if blk.q_corner_s is not None:
-            q[3:6] += blk.q_corner_s[0]
-        self._filter.predict_rows(blk.rows_s[0], q)
+        self._filter.predict_rows(blk.rows_s[0], blk.chunk_noise_s(np.diag(q1_s), 0))
         if blk.n_gaps:
             widen_for_gaps(self._filter.P, self.layout, blk.n_gaps)
         self._t_last_ns = int(t[m - 1])

@@ -49,6 +49,14 @@ class Block:
     n_gaps: int  # intervals longer than 1.5 nominal periods
     q_corner_s: FloatArray | None = None  # (B, 3) velocity variance at corners, scaled
 
+    def chunk_noise_s(self, q1_diag_s: FloatArray, b: int) -> FloatArray:
+        """Diagonal ``Q`` of chunk ``b`` (scaled): ``Q`` per second over its length, plus
+        the velocity variance of the corners in it (:func:`corner_variance`)."""
+        q = q1_diag_s * self.T_s[b]
+        if self.q_corner_s is not None:
+            q[3:6] += self.q_corner_s[b]
+        return q
+
 
 #: Relative change at which the compensation has converged (``sensor_model``'s, a few ulps).
 _TINY = 4.0 * float(np.finfo(float).eps)

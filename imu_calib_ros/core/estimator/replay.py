@@ -263,11 +263,18 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
                 ledger.joints(b)
                 est.push_joint_batch(b)
         est.flush()
+        _check_usable(est, ledger, fixture, config)
     except InputError as exc:  # stamps taken on receipt may be why: say so on the same line
         hint = est.stamp_hint()
-        if hint and hint not in str(exc):
+        if hint:
             raise InputError(f'{exc}{hint}') from None
         raise
+    return est, ledger
+
+
+def _check_usable(est: CalibrationEstimator, ledger: RunLedger, fixture: Fixture,
+                  config: EstimatorConfig) -> None:
+    """After a pass: :class:`InputError` with one line when the input could not calibrate."""
     c = est.counters
     if c['imu_samples'] == 0:
         raise InputError('no IMU samples in the input: check --imu-topic')
@@ -293,8 +300,7 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
         # A diverged filter never becomes a calibration file (issue 6).
         raise InputError(f'the estimator diverged ({health["divergence_reason"]}); no '
                          f'calibration written: {_weak_plan(ledger)}check the IMU grade, '
-                         'units and the fixture file' + est.stamp_hint())
-    return est, ledger
+                         'units and the fixture file')
 
 
 def _weak_plan(ledger: RunLedger) -> str:
