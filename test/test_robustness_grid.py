@@ -89,6 +89,16 @@ CASES = [
                                       joint_stamp_jitter_s=1e-3),
      'joint states stamped on receipt, U(0, 1 ms) late at 100 Hz: encoder rates 5 % off, '
      'refused as "the gyro rates do not follow the fixture\'s joint rotations"'),
+    ('nav-joint-receipt-half-period', dict(unit='nav', size=1.0, mount_deg=3.0, seed=13,
+                                           joint_stamp_jitter_s=5e-3),
+     'joint states stamped on receipt, U(0, 5 ms) late at 100 Hz (half a period: rounding '
+     'intervals cannot count the periods), with the table turning while the clock learnt: '
+     'refused as "the gyro rates do not follow the fixture\'s joint rotations"'),
+    ('industrial-1khz-receipt-stamps', dict(unit='industrial_mems', size=1.0, mount_deg=5.0,
+                                            plan='six_position_turns', imu_rate_hz=1000.0,
+                                            imu_stamp_jitter_s=2e-3, seed=14),
+     'a 1 kHz IMU stamped on receipt, U(0, 2 ms) late (two periods): every late interval a '
+     '"gap", bridged one by one (a 10-minute bag ran 8+ minutes before it was killed)'),
 ]
 
 

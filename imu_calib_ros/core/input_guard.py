@@ -304,35 +304,42 @@ class InputGuard:
 
     def _gaps(self, kt: IntArray) -> tuple[IntArray, IntArray]:
         """Flag gaps among the accepted stamps ``kt``; indices of the long ones and of all."""
+        none = np.zeros(0, np.int64)
+        if not len(kt):
+            return none, none
+        if self.nominal_period_ns is None:
+            prev = self.last_kept_ns
+            dt = np.diff(kt) if prev is None else np.diff(np.concatenate([[prev], kt]))
+            self._dts.extend(int(x) for x in dt[:32 - len(self._dts)])
+            if len(self._dts) >= 8:
+                self.nominal_period_ns = int(np.median(self._dts))
+        long_, all_ = self.gap_indices(self.last_kept_ns, kt)
+        self.last_kept_ns = int(kt[-1])
+        if all_.size:
+            self.flagged['gap'] += int(all_.size)
+            self.last_event_ns = int(kt[all_[-1]])
+        if long_.size:
+            self.flagged['long_gap'] += int(long_.size)
+            self.last_event_ns = int(kt[long_[-1]])
+        return long_, all_
+
+    def gap_indices(self, prev_ns: int | None, kt: IntArray) -> tuple[IntArray, IntArray]:
+        """Indices in ``kt`` of the samples after a long gap and after any gap (an interval
+        beyond ``gap_periods`` nominal periods), ``prev_ns`` the stamp before them (None: the
+        first sample follows nothing). Pure: also for stamps revised later
+        (:meth:`~.stamp_clock.StampClock.revise`)."""
         cfg = self.config
         none = np.zeros(0, np.int64)
         if not len(kt):
             return none, none
-        prev = np.concatenate([[kt[0] if self.last_kept_ns is None else self.last_kept_ns],
-                               kt[:-1]])
-        dt = kt - prev
-        if self.last_kept_ns is None:
-            dt = dt[1:]
-            off = 1
-        else:
-            off = 0
-        self.last_kept_ns = int(kt[-1])
-        if self.nominal_period_ns is None:
-            self._dts.extend(int(x) for x in dt[:32 - len(self._dts)])
-            if len(self._dts) >= 8:
-                self.nominal_period_ns = int(np.median(self._dts))
-        long_ = np.nonzero(dt > cfg.max_gap_s * 1e9)[0] + off
+        dt = np.diff(kt) if prev_ns is None else np.diff(np.concatenate([[prev_ns], kt]))
+        off = 1 if prev_ns is None else 0
+        long_ = (np.nonzero(dt > cfg.max_gap_s * 1e9)[0] + off).astype(np.int64)
         all_ = none
         if self.nominal_period_ns is not None:
-            is_gap = np.nonzero(dt > cfg.gap_periods * self.nominal_period_ns)[0]
-            if is_gap.size:
-                self.flagged['gap'] += int(is_gap.size)
-                self.last_event_ns = int(kt[is_gap[-1] + off])
-                all_ = (is_gap + off).astype(np.int64)
-        if long_.size:
-            self.flagged['long_gap'] += int(long_.size)
-            self.last_event_ns = int(kt[long_[-1]])
-        return long_.astype(np.int64), all_
+            all_ = (np.nonzero(dt > cfg.gap_periods * self.nominal_period_ns)[0]
+                    + off).astype(np.int64)
+        return long_, all_
 
     def _check_gyro_units(self, t: IntArray, w: FloatArray, reason: NDArray[np.int64]) -> None:
         """Compare |gyro| with the encoder-derived rate magnitude (deg/s signature = 180/pi)."""

@@ -18,15 +18,32 @@ least-squares line converges as ``spread / N^1.5`` (a uniform 2 ms delay over 1,
 1. learns from the first :data:`LEARN_SAMPLES` stamps the period (median interval), each
    interval's count of periods (a dropped message: more than one) and the intervals' scatter
    about them; stamps whose scatter is below :data:`JITTER_FRACTION` of the period (a
-   sender's own clock, a driver's steered clock, ns rounding) pass unchanged, and so do
-   streams that are not periodic (more than :data:`IRREGULAR_SHARE` of the intervals beyond
-   0.4 periods from a whole count: an event-driven publisher, delays beyond half a period,
-   which cannot be told from a dropped message);
-2. otherwise replaces each later stamp by the envelope line at its sample index, the line
+   sender's own clock, a driver's steered clock, ns rounding) pass unchanged;
+2. a stream whose intervals do not round to whole periods (more than
+   :data:`IRREGULAR_SHARE` of them beyond 0.4 periods from a whole count) may still be one
+   message per period with delays spread over up to a few periods (a 1 kHz IMU read over
+   USB, a driver reading a FIFO in bursts): it is counted one period per message
+   (:attr:`sequential`) when a window of :data:`SEQ_LEARN` learnt stamps lies within
+   :data:`SEQ_MAX_SPREAD` periods above one line with no step in its lower envelope. A
+   dropped message is then found where a stamp lies further above the line than the learnt
+   delays reach (a larger count), or at the next fit, where the lower envelope of the last
+   :data:`REFIT_SAMPLES` stamps stands a half period or more above the line (the count
+   lagged: those stamps are counted again from the step); a stamp is never given a count
+   whose instant is after it (a delay is never negative). Frequent drops in a spread of
+   more than a period cannot be counted (a slightly longer period fits a few hundred
+   stamps): when the stamps leave the line the stream passes as given from there;
+3. either way, streams that are not periodic pass as given: an event-driven publisher,
+   whose stamps wander about any line as the sum of its intervals where receipt delays are a
+   new draw at each message (:func:`_fresh`), and delays no count explains;
+4. otherwise replaces each later stamp by the envelope line at its sample index, the line
    fitted again every :data:`REFIT_SAMPLES` over the last :data:`WINDOW` (the period follows
    the sender's crystal against the host's). What is left of the delays is their least value
    (a constant latency, which the estimator measures) and a wander of ``~ spread / WINDOW``.
    A stream whose intervals stop matching whole periods later passes unchanged from then on.
+   The learnt stamps went out as given (and the first replaced ones are held back behind
+   them, to stay increasing): :meth:`StampClock.revise` gives their instants on the line
+   to a consumer that still holds them (the estimator's coarse start holds its first
+   minute, and the table may already turn).
 
 Hand-written: one-way clock synchronisation has no well-kept Python library; the line is
 ``scipy.optimize.minimize_scalar`` on the concave ``P -> min_i (s_i - P (k_i - c))``.
@@ -49,6 +66,15 @@ JITTER_FRACTION = 1e-3
 #: share of intervals further than 0.4 periods from a whole number of periods beyond which a
 #: stream is not periodic: its stamps pass as given
 IRREGULAR_SHARE = 0.01
+#: largest spread of the learnt delays, in periods, that one-per-period counting accepts (a
+#: driver that reads a sensor's FIFO in bursts of up to 16 samples; a wider spread: an
+#: event-driven publisher, or drops among the learnt stamps)
+SEQ_MAX_SPREAD = 16.0
+#: the learnt stamps one-per-period counting is decided on, a window at a time (1 % of drops
+#: leave 8 % of such windows without one, 27 % of learnings with one), and the learnings it
+#: tries
+SEQ_LEARN = 256
+SEQ_TRIES = 16
 #: stamps the envelope line rests on (20 s at 200 Hz: a crystal's drift is far below a ns)
 WINDOW = 4096
 #: stamps between two fits of the line (each stamp is put on the last line fitted)
@@ -62,16 +88,72 @@ def period_counts(d: FloatArray, period: float) -> tuple[FloatArray, NDArray[np.
     return n, np.abs(d - n * period) > 0.4 * period
 
 
-def envelope_line(k: FloatArray, s: FloatArray, period: float) -> tuple[float, float, float]:
+def count_messages(s: FloatArray, line: tuple[float, float, float], delay_hi: float,
+                   k_prev: float, fitted: bool = True) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Counts of stamps ``s`` on ``line`` (``a + P (k - c)``): one period per message after
+    count ``k_prev``, more where a stamp lies more than ``delay_hi`` above the line (a drop),
+    never a count whose line instant is after its stamp (``fitted``: a spike read as a drop
+    is undone at the next stamp). Also which stamps the line put before the count after
+    the last (evidence against the line)."""
+    a, P, c = line
+    x = (s - a) / P + c  # the count whose instant is the stamp (a zero delay)
+    lo = np.ceil(x - delay_hi / P)
+    hi = np.floor(x + 0.1) if fitted else np.full(len(s), np.inf)  # 0.1: the line's error
+    idx = np.arange(len(s), dtype=float)
+    k = idx + np.maximum(k_prev + 1.0, np.maximum.accumulate(lo - idx))
+    below = np.zeros(len(s), bool)
+    if np.all(k <= hi):
+        return k, below
+    prev = k_prev  # rare (a delay beyond any learnt one): the same rule, stamp by stamp
+    for m in range(len(s)):
+        below[m] = hi[m] < max(prev + 1.0, lo[m])
+        km = min(max(prev + 1.0, lo[m]), hi[m])
+        if m and km <= k[m - 1] and k[m - 1] - 1.0 > (k[m - 2] if m > 1 else k_prev):
+            k[m - 1] = km - 1.0  # the stamp before was the spike: its count back
+        k[m] = prev = km
+    return k, below
+
+
+def _window_counts(s: FloatArray, k: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, float, float] | None:
+    """Counts of a window of stamps ``s`` from first counts ``k``: the envelope line, the
+    delays' robust top above it, the drops that top shows counted (:func:`count_messages`),
+    three times or until the counts hold. ``(k, residuals, P, top)``, or None."""
+    for _ in range(3):
+        P = float(np.polyfit(k, s, 1)[0])
+        if not P > 0.0:
+            return None
+        line = envelope_line(k, s, P, 1e-2)  # (a least-squares slope: 1e-3 at 2 P)
+        a, P, c = line
+        r = s - (a + P * (k - c))
+        hi = 1.2 * float(np.quantile(r, 0.95)) + 0.1 * P  # a robust top of the delays
+        k_new = count_messages(s, line, hi, -1.0)[0]
+        k_new = k_new - k_new[0]
+        if np.array_equal(k_new, k):
+            break
+        k = k_new
+    return k, r, P, hi
+
+
+def _fresh(r: FloatArray) -> bool:
+    """Residuals ``r`` about a line are receipt delays, a new draw at each message: their
+    steps vary as much as they do (2x for independent delays, 1.3x for bursts of 8). The
+    stamps of an event-driven publisher wander about any line (a sum of its intervals), with
+    steps far smaller than that."""
+    return float(np.var(np.diff(r))) > 0.5 * float(np.var(r))
+
+
+def envelope_line(k: FloatArray, s: FloatArray, period: float, rel: float = 1e-3
+                  ) -> tuple[float, float, float]:
     """The line ``a + P (k - c)`` under every point ``(k_i, s_i)`` that is highest at their
     centroid ``c`` (the supporting line of their lower convex hull there): ``(a, P, c)``.
-    ``period``: a first guess of ``P`` within 1e-3 of it."""
+    ``period``: a first guess of ``P`` within ``rel`` of it."""
     c = float(k.mean())
     dk = k - c
 
     def neg_floor(p: float) -> float:
         return -float(np.min(s - p * dk))
-    res = minimize_scalar(neg_floor, bounds=(period * (1 - 1e-3), period * (1 + 1e-3)),
+    res = minimize_scalar(neg_floor, bounds=(period * (1 - rel), period * (1 + rel)),
                           method='bounded', options={'xatol': 1e-9 * period})
     P = float(res.x)
     return -neg_floor(P), P, c
@@ -104,12 +186,27 @@ class StampClock:
         self._since_fit = 0
         self._last_out = np.iinfo(np.int64).min + 1
         self._bad = np.zeros(0, bool)  # the recent intervals' "not a whole count" flags
+        self.sequential = False  # counted one period per message (delays beyond 0.4 periods)
+        self._delay_hi = 0.0  # [ns] a delay above the line beyond which a count was dropped
+        self._fitted = False
+        self._period0 = 0.0  # the period learnt (the fits stay within 1e-3 of it)
+        self._tries = 0  # learnings tried for one-per-period counting
+        # stamps that went out as given while learning (and those held back behind them)
+        # and their instants on the line: :meth:`revise`
+        self._rev_from = np.zeros(0, np.int64)
+        self._rev_to = np.zeros(0, np.int64)
+        self._recording = False
+        self._given_last = 0  # the last stamp given out as given while learning
+        self._given: list[IntArray] = []  # stamps of earlier learnings (gone out as given)
+        #: revisions were added since the flag was cleared (a consumer holding stamps clears it)
+        self.revision_pending = False
 
     def reset(self) -> None:
         """A backward time jump (a new time base: a looping bag): a new record from the next
         stamp; the decision and the period are kept (same sender)."""
         self._s_last = None
         self._last_out = np.iinfo(np.int64).min + 1
+        self._recording = False
 
     def __call__(self, stamps_ns: IntArray) -> IntArray:
         t = np.asarray(stamps_ns, np.int64)
@@ -121,12 +218,66 @@ class StampClock:
             self._learnt += min(len(t), need)
             if self._learnt < self.learn_samples:
                 return t
-            self._decide(np.concatenate(self._learn))
+            t_learnt = np.concatenate(self._learn)
             self._learn = []
+            self._decide(t_learnt)
+            if not self.decided:  # learning again (a drop among the stamps learnt)
+                self._given.append(t_learnt)
+                return np.concatenate([t[:need], self(t[need:])])
             if len(t) <= need or not self.smoothing:
                 return t
             return np.concatenate([t[:need], self._track(t[need:])])
         return self._track(t)
+
+    def revise(self, stamps_ns: IntArray) -> IntArray:
+        """Stamps this clock gave out before it could replace them (the learnt ones, passed
+        as given, and the first replaced ones, held back to stay after them), as their
+        instants on the sender's clock; other stamps unchanged. For a consumer that still
+        holds them (the estimator's coarse start holds its first minute)."""
+        t = np.asarray(stamps_ns, np.int64)
+        if not len(self._rev_from) or not len(t):
+            return t
+        idx = np.minimum(np.searchsorted(self._rev_from, t), len(self._rev_from) - 1)
+        hit = self._rev_from[idx] == t
+        if not hit.any():
+            return t
+        out = t.copy()
+        out[hit] = self._rev_to[idx[hit]]
+        return out
+
+    def _add_revisions(self, given: IntArray, line_ns: IntArray) -> None:
+        moved = given != line_ns
+        if moved.any():
+            self._rev_from = np.concatenate([self._rev_from, given[moved]])
+            to = np.concatenate([self._rev_to, line_ns[moved]])
+            # strictly increasing as the stamps they replace (a spike's count shared with
+            # the stamp after it: 1 ns apart, as the replaced stamps went out)
+            idx = np.arange(len(to), dtype=np.int64)
+            self._rev_to = np.maximum.accumulate(to - idx) + idx
+            self.revision_pending = True
+
+    def _revise_learnt(self, t: IntArray) -> None:
+        """The learnt stamps ``t`` (gone out as given) on the line: those the line's counts
+        reach (the last ones), and before them one period per stamp while each lies within
+        the learnt spread of delays above the line."""
+        a, P, c = self._line
+        s = (t - self._base_s).astype(float)
+        n_h = min(len(self._hist_k), len(t))
+        k = np.full(len(t), np.nan)
+        k[len(t) - n_h:] = self._hist_k[-n_h:]
+        i0 = len(t) - n_h
+        if i0 > 0:  # backwards: the largest count below the next that is not after its stamp
+            idx = np.arange(i0, dtype=float)
+            hi = np.floor((s[:i0] - a) / P + c + 0.1)
+            kb = idx + np.minimum(k[i0] - i0, np.minimum.accumulate((hi - idx)[::-1])[::-1])
+            r = s[:i0] - (a + P * (kb - c))
+            spread = self._delay_hi if self.sequential else 0.5 * P
+            bad = np.flatnonzero(r > spread + 0.1 * P)  # (a drop it cannot place)
+            first = int(bad[-1]) + 1 if len(bad) else 0
+            k[first:i0] = kb[first:]
+        sel = ~np.isnan(k)
+        self._add_revisions(t[sel], self._base_s + np.rint(a + P * (k[sel] - c)).astype(np.int64))
+        self._recording, self._given_last = True, int(t[-1])
 
     def _decide(self, t: IntArray) -> None:
         self.decided = True
@@ -138,13 +289,18 @@ class StampClock:
         self.period_ns = p0
         self.jitter_ns = 1.4826 * float(np.median(np.abs(d - n * p0)))
         if bad.mean() > IRREGULAR_SHARE:
-            self.irregular = True
-            return
-        if self.jitter_ns <= JITTER_FRACTION * p0:
-            return
+            counted = self._decide_sequential(t)
+            self.irregular = self.irregular or not counted
+        elif self.jitter_ns > JITTER_FRACTION * p0:
+            self._start(t, np.concatenate([[0.0], np.cumsum(n)]), bad)
+        if self.smoothing:
+            self._revise_learnt(np.concatenate(self._given + [t]))
+        self._given = []
+
+    def _start(self, t: IntArray, k: FloatArray, bad: NDArray[np.bool_]) -> None:
+        """Replace the stamps from now on: the learnt stamps ``t`` at counts ``k``."""
         self.smoothing = True
         self._base_s = int(t[0])
-        k = np.concatenate([[0.0], np.cumsum(n)])
         s = (t - self._base_s).astype(float)
         self._hist_k, self._hist_s = k[-self.window:], s[-self.window:]
         self._k_last, self._s_last = float(k[-1]), int(t[-1])
@@ -152,13 +308,90 @@ class StampClock:
         self._bad = bad
         # the median interval is a coarse period (dropped messages move it by tens of us):
         # the least-squares slope over the counted periods first, then the envelope
-        self.period_ns = float(np.polyfit(k, s, 1)[0])
+        self.period_ns = self._period0 = float(np.polyfit(k, s, 1)[0])
         self._fit()
+        a, P, c = self._line
+        if not self.sequential and not _fresh(s - (a + P * (k - c))):
+            self.smoothing, self.irregular = False, True  # not receipt delays: event-driven
+
+    def _decide_sequential(self, t: IntArray) -> bool:
+        """One message per period (module docstring, 2.). Each :data:`SEQ_LEARN` learnt
+        stamps are counted (:func:`_window_counts`) and tried: within :data:`SEQ_MAX_SPREAD`
+        periods above one line, the lower envelope of each quarter of them within half a
+        period of it, the residuals fresh draws (:func:`_fresh`). A drop the counting could
+        not see (a spread of delays over a period) lengthens a window's period by
+        ``P / SEQ_LEARN`` (a crystal's error is below 1e-4): the shortest period of those
+        that pass wins. The learnt stamps after its window are counted as later ones are.
+        With none, the clock learns again, :data:`SEQ_TRIES` times in all before the stream
+        is taken as not periodic."""
+        self._tries += 1
+        best: tuple[float, int, FloatArray, float] | None = None
+        for w0 in range(0, len(t) - SEQ_LEARN + 1, SEQ_LEARN):
+            tw = t[w0:w0 + SEQ_LEARN]
+            s = (tw - tw[0]).astype(float)
+            got = _window_counts(s, np.arange(len(tw), dtype=float))
+            if got is None:
+                continue
+            k, r, P, hi = got
+            mins = [float(x.min()) for x in np.array_split(r, 4)]
+            if r.max() <= SEQ_MAX_SPREAD * P and max(mins) <= 0.5 * P and _fresh(r) \
+                    and (best is None or P < best[0]):
+                best = (P, w0, k, hi)
+        if best is None:
+            if self._tries < SEQ_TRIES:
+                self.decided, self._learnt = False, 0  # learn again from the next stamp
+            return self._tries < SEQ_TRIES
+        _, w0, k, self._delay_hi = best
+        self.sequential = True
+        self._start(t[w0:w0 + SEQ_LEARN], k, np.zeros(0, bool))
+        if w0 + SEQ_LEARN < len(t):  # the learnt stamps after it went out as given
+            self._track(t[w0 + SEQ_LEARN:])
+            self._last_out = int(t[-1])
+            # the line on every stamp counted (a window's slope is the least of a few,
+            # ~j / 256^2 off: 0.1 period a few hundred stamps on at 2 periods of delays)
+            self._fit()
+        return True
+
+    def _count(self, s: FloatArray, k_prev: float) -> FloatArray:
+        """:func:`count_messages` on the last line fitted; its stamps below the line noted."""
+        k, below = count_messages(s, self._line, self._delay_hi, k_prev, self._fitted)
+        self._bad = np.concatenate([self._bad, below])[-self.window:]
+        return k
+
+    def _recount(self) -> None:
+        """A drop the counting missed (delays spread over more than a period): the lower
+        envelope of the last stamps stands a half period or more above the line from some
+        stamp on (at least 64 stamps, which a spread of delays cannot all share by chance):
+        those stamps are counted again from there."""
+        a, P, c = self._line
+        m = min(len(self._hist_k), self.refit + 64)
+        r = self._hist_s[-m:] - (a + P * (self._hist_k[-m:] - c))
+        low = np.minimum.accumulate(r[::-1])[::-1]  # the least delay from each stamp on
+        for _ in range(8):  # a step at a time, the first one first
+            step = np.flatnonzero(low - np.minimum.accumulate(r) > 0.5 * P)
+            if len(step) < 64:
+                return
+            i0 = int(step[0])
+            shift = np.floor((low[i0] - r[:i0].min()) / P + 0.5)
+            self._hist_k[len(self._hist_k) - m + i0:] += shift
+            r[i0:] -= shift * P
+            low = np.minimum.accumulate(r[::-1])[::-1]
+
+    def _counts_hold(self) -> bool:
+        """One count per period still holds over the window: its stamps lie within the
+        learnt spread of delays above the line fitted to them (frequent drops in a spread
+        of more than a period make a slightly longer period look right over a few hundred
+        stamps, and wander off it by the square root of their number over the window)."""
+        a, P, c = self._line
+        r = self._hist_s - (a + P * (self._hist_k - c))
+        return float(np.mean((r < -0.25 * P) | (r > self._delay_hi + 0.5 * P))) \
+            <= IRREGULAR_SHARE
 
     def _fit(self) -> None:
-        self._line = envelope_line(self._hist_k, self._hist_s, self.period_ns)
+        self._line = envelope_line(self._hist_k, self._hist_s, self._period0)
         self.period_ns = self._line[1]
         self._since_fit = 0
+        self._fitted = True
 
     def _track(self, t: IntArray) -> IntArray:
         if self._s_last is None:  # a new time base: a new record, the period kept
@@ -167,32 +400,58 @@ class StampClock:
             self._hist_k, self._hist_s = np.zeros(0), np.zeros(0)
             self._line = (0.0, self.period_ns, 0.0)  # anchored on the first stamp
             self._since_fit = 0
-        d = np.diff(np.concatenate([[self._s_last], t])).astype(float)
-        n, bad = period_counts(d, self.period_ns)
-        self._bad = np.concatenate([self._bad, bad])[-self.window:]
-        if len(self._bad) >= 256 and self._bad.mean() > IRREGULAR_SHARE:
-            self.irregular, self.smoothing = True, False  # no longer periodic: as given
-            return t
-        k = self._k_last + np.cumsum(n)
+            self._fitted = False  # (its delay unknown: no stamp is below it until a fit)
+        k: FloatArray | None = None
+        if not self.sequential:
+            d = np.diff(np.concatenate([[self._s_last], t])).astype(float)
+            n, bad = period_counts(d, self.period_ns)
+            self._bad = np.concatenate([self._bad, bad])[-self.window:]
+            if len(self._bad) >= 256 and self._bad.mean() > IRREGULAR_SHARE:
+                self.irregular, self.smoothing = True, False  # no longer periodic: as given
+                return t
+            k = self._k_last + np.cumsum(n)
         s = (t - self._base_s).astype(float)
         out = np.empty(len(t))
+        k_prev = self._k_last
         i = 0
         while i < len(t):  # each stamp on the last line fitted; a new fit every REFIT_SAMPLES
             j = min(len(t), i + max(1, self.refit - self._since_fit))
             a, P, c = self._line
-            out[i:j] = a + P * (k[i:j] - c)
-            self._hist_k = np.concatenate([self._hist_k, k[i:j]])[-self.window:]
+            kc = self._count(s[i:j], k_prev) if k is None else k[i:j]
+            if k is None and len(self._bad) >= 256 and self._bad.mean() > IRREGULAR_SHARE:
+                # one count per period does not hold (frequent drops in a wide spread of
+                # delays): as given from here on
+                self.irregular, self.smoothing = True, False
+                return np.concatenate([self._finish(out[:i], t[:i]), t[i:]])
+            out[i:j] = a + P * (kc - c)
+            self._hist_k = np.concatenate([self._hist_k, kc])[-self.window:]
             self._hist_s = np.concatenate([self._hist_s, s[i:j]])[-self.window:]
             self._since_fit += j - i
             if self._since_fit >= self.refit and len(self._hist_k) >= 64:
+                if self.sequential:
+                    self._recount()
                 self._fit()
+                if self.sequential and not self._counts_hold():
+                    self.irregular, self.smoothing = True, False  # as given from here on
+                    return np.concatenate([self._finish(out[:j], t[:j]), t[j:]])
+            k_prev = float(self._hist_k[-1])
             i = j
-        self._k_last, self._s_last = float(k[-1]), int(t[-1])
-        res = self._base_s + np.rint(out).astype(np.int64)
-        # strictly increasing, as the input: at least 1 ns after the one before
-        idx = np.arange(len(res), dtype=np.int64)
-        res = np.maximum.accumulate(np.maximum(res, self._last_out + 1) - idx) + idx
+        self._k_last, self._s_last = k_prev, int(t[-1])
+        return self._finish(out, t)
+
+    def _finish(self, out: FloatArray, t: IntArray) -> IntArray:
+        """The line's instants ``out`` (from the base) as stamps, strictly increasing as the
+        input (at least 1 ns after the one before)."""
+        if not len(out):
+            return t[:0]
+        line_ns = self._base_s + np.rint(out).astype(np.int64)
+        idx = np.arange(len(line_ns), dtype=np.int64)
+        res = np.maximum.accumulate(np.maximum(line_ns, self._last_out + 1) - idx) + idx
         self._last_out = int(res[-1])
+        if self._recording:  # held back behind the learnt stamps: their revisions too
+            held = line_ns <= self._given_last
+            self._recording = bool(held[-1])
+            self._add_revisions(res[held], line_ns[held])
         return res
 
 

@@ -11,7 +11,7 @@ known. This module holds and measures; :mod:`.coarse` is the maths.
 """
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -61,6 +61,26 @@ class Bootstrap:
             at = max(cfg.bootstrap_min_s, self._next_check_s)
             self._next_check_s = max(at + 20.0, 1.25 * at)  # ~12 checks up to 600 s
             yield at >= cfg.bootstrap_max_s, t0 + int(at * 1e9)
+
+    def revise_stamps(self, imu: Callable[[IntArray], IntArray] | None,
+                      joints: Callable[[IntArray], IntArray] | None,
+                      gap_indices: Callable[[int | None, IntArray], tuple[Any, Any]]) -> int:
+        """Stamps held as the clocks gave them while learning, on the senders' clocks now
+        (:meth:`~..stamp_clock.StampClock.revise`; None: no change), the IMU's gaps flagged
+        again on them. Returns the change in the number of gaps."""
+        change = 0
+        prev: int | None = None
+        for i, item in enumerate(self.items):
+            if item[0] == 'joints':
+                if joints is not None:
+                    self.items[i] = ('joints', joints(item[1]), item[2])
+            elif imu is not None:
+                t = imu(item[1])
+                long_gaps, gaps = gap_indices(prev, t)
+                change += len(gaps) - len(item[4])
+                self.items[i] = ('imu', t, item[2], item[3], gaps, long_gaps)
+                prev = int(t[-1])
+        return change
 
     def arrays(self, t_cut_ns: int | None = None
                ) -> tuple[IntArray, FloatArray, FloatArray, IntArray, FloatArray] | None:

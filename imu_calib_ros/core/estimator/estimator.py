@@ -891,6 +891,7 @@ class CalibrationEstimator:
         determined (or at the end of the data), configure the filter around it and replay the
         held input. Returns whether the bootstrap ended."""
         assert self._boot is not None
+        self._revise_held_stamps()
         ready, st = self._boot.measure(self.fixture, final, t_cut_ns)
         if not ready:
             return False
@@ -910,6 +911,23 @@ class CalibrationEstimator:
             elif len(item[1]):
                 self._joints.extend(*self._recorded(item[1], item[2]))
         return True
+
+    def _revise_held_stamps(self) -> None:
+        """The held stamps a clock gave out as given while it learnt (stamps taken on
+        receipt), on the sender's clock now that it knows it (the coarse start and the
+        filter see the same instants as for the rest of the record)."""
+        assert self._boot is not None
+        g = self._guard
+        clocks = (g.imu_clock, g.joint_clock)
+        if not any(c.revision_pending for c in clocks):
+            return
+        change = self._boot.revise_stamps(
+            g.imu_clock.revise if g.imu_clock.revision_pending else None,
+            g.joint_clock.revise if g.joint_clock.revision_pending else None, g.gap_indices)
+        g.flagged['gap'] += change
+        for c in clocks:
+            c.revision_pending = False
+        self._sync_input_counters()
 
     def _try_initialise(self) -> bool:
         """Coarse alignment on the first stationary window (levelling + fixture heading)."""
