@@ -59,10 +59,16 @@ __all__ = ['GuardConfig', 'ImuVerdict', 'InputGuard', 'IMU_REASONS', 'JOINT_REAS
 
 IMU_REASONS = ('duplicate_stamp', 'out_of_order', 'time_jump_backward', 'frame_id', 'non_finite',
                'all_zero', 'saturated', 'accel_units_g', 'accel_magnitude', 'gyro_units_deg',
-               'filter_diverged')
+               'filter_diverged', 'stamp_scatter')
 JOINT_REASONS = ('joint_missing_names', 'joint_non_finite', 'joint_duplicate_stamp',
                  'joint_out_of_order')
 RAD_PER_DEG = math.pi / 180.0
+#: share of the IMU intervals flagged as gaps, over at least SCATTER_MIN_SAMPLES kept samples
+#: since the stamp clock found the stream not periodic, beyond which the stream is refused
+#: (:attr:`InputGuard.stamps_error`): a sample after a gap is the mean over its own period only
+#: (CONTRACT 1), and bridging one gap after another takes the estimator minutes per minute
+SCATTER_GAP_SHARE = 0.05
+SCATTER_MIN_SAMPLES = 4096
 PEND_MAX = 8193  # newest accepted joint samples kept for the encoder rates
 _LOG = logging.getLogger('imu_calib_ros.input')
 
@@ -182,6 +188,11 @@ class InputGuard:
         self.rejected: dict[str, int] = {r: 0 for r in IMU_REASONS + JOINT_REASONS}
         self.flagged: dict[str, int] = {'gap': 0, 'long_gap': 0}
         self.units_error: str | None = None
+        #: latched when the IMU stamps scatter so that a large share of its intervals look
+        #: like gaps (SCATTER_GAP_SHARE): every later sample is rejected ('stamp_scatter')
+        self.stamps_error: str | None = None
+        self._scatter_kept = 0
+        self._scatter_gaps = 0
         self.last_stamp_ns: int | None = None  # newest IMU stamp seen (accepted or not)
         self.last_kept_ns: int | None = None  # newest accepted IMU stamp
         self.last_event_ns: int | None = None  # data time of the newest rejection or gap
@@ -216,7 +227,7 @@ class InputGuard:
         w = np.asarray(gyro_rad_s, float).reshape(-1, 3)
         f = np.asarray(accel_m_s2, float).reshape(-1, 3)
         n = len(t)
-        if n == 1 and not diverged and self.units_error is None:
+        if n == 1 and not diverged and self.units_error is None and self.stamps_error is None:
             fast = self._check_one(int(t[0]), w[0], f[0], frame_id)
             if fast is not None:
                 return fast
@@ -237,6 +248,8 @@ class InputGuard:
             mark(np.ones(n, bool), 'frame_id')
         if diverged:
             mark(np.ones(n, bool), 'filter_diverged')
+        if self.stamps_error is not None:
+            mark(np.ones(n, bool), 'stamp_scatter')
         finite = np.isfinite(w).all(axis=1) & np.isfinite(f).all(axis=1)
         mark(~finite, 'non_finite')
         with np.errstate(invalid='ignore'):
@@ -266,6 +279,7 @@ class InputGuard:
             self.last_event_ns = int(np.maximum(t, prev_max)[~keep].max())
         kt = self.imu_clock(t[keep])
         long_gaps, gaps = self._gaps(kt)
+        self._watch_scatter(len(kt), len(gaps))
         self._log()
         return ImuVerdict(keep, long_gaps, gaps, kt if self.imu_clock.smoothing else None)
 
@@ -322,6 +336,25 @@ class InputGuard:
             self.flagged['long_gap'] += int(long_.size)
             self.last_event_ns = int(kt[long_[-1]])
         return long_, all_
+
+    def _watch_scatter(self, kept: int, gaps: int) -> None:
+        """Latch :attr:`stamps_error` when, since the IMU clock found its stamps not
+        periodic, more than :data:`SCATTER_GAP_SHARE` of the kept samples followed a gap."""
+        c = self.imu_clock
+        if not c.irregular or self.stamps_error is not None:
+            return
+        self._scatter_kept += kept
+        self._scatter_gaps += gaps
+        share = self._scatter_gaps / max(self._scatter_kept, 1)
+        if self._scatter_kept < SCATTER_MIN_SAMPLES or share <= SCATTER_GAP_SHARE:
+            return
+        self.stamps_error = (
+            f'{share:.0%} of the IMU intervals are gaps (longer than '
+            f'{self.config.gap_periods:g} periods: the data of a gap is lost, CONTRACT 1), as '
+            f'the IMU stamps scatter about a {1e9 / c.period_ns:.4g} Hz rate (by '
+            f'{c.jitter_ns * 1e-6:.2g} ms or more): stamped on receipt by the host, with '
+            'messages dropped? Stamp each message at its sample instant (CONTRACT 1)')
+        _LOG.error('%s', self.stamps_error)
 
     def gap_indices(self, prev_ns: int | None, kt: IntArray) -> tuple[IntArray, IntArray]:
         """Indices in ``kt`` of the samples after a long gap and after any gap (an interval

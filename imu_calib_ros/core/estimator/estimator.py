@@ -387,6 +387,12 @@ class CalibrationEstimator:
                 out[f.name] = v if isinstance(v, (bool, int, float, str)) else str(v)
         return out
 
+    @property
+    def stamps_error(self) -> str:
+        """The input guard's latched refusal of IMU stamps whose scatter makes most of the
+        stream gaps (:attr:`~..input_guard.InputGuard.stamps_error`), or ''."""
+        return self._guard.stamps_error or ''
+
     def stamp_hint(self) -> str:
         """A clause naming IMU or joint stamps that scatter about their rate too much to be
         put back on the sender's clock (:func:`~..stamp_clock.scatter_hint`), or ''."""

@@ -243,6 +243,8 @@ def status(diverged: str | None, guard: InputGuard, guard_config: GuardConfig,
         return 'ERROR', f'filter diverged: {diverged}; use the last good calibration'
     if g.units_error is not None:
         return 'ERROR', g.units_error
+    if g.stamps_error is not None:
+        return 'ERROR', g.stamps_error
     if now_ns is not None and (g.last_kept_ns is None
                                or now_ns - g.last_kept_ns > cfg.stale_after_s * 1e9):
         return 'STALE', 'no IMU samples accepted recently'

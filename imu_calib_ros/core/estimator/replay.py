@@ -266,7 +266,7 @@ def _replay_pass(samples: Any, fixture: Fixture, grade: ImuGrade | None, config:
         _check_usable(est, ledger, fixture, config)
     except InputError as exc:  # stamps taken on receipt may be why: say so on the same line
         hint = est.stamp_hint()
-        if hint:
+        if hint and not est.stamps_error:
             raise InputError(f'{exc}{hint}') from None
         raise
     return est, ledger
@@ -278,6 +278,8 @@ def _check_usable(est: CalibrationEstimator, ledger: RunLedger, fixture: Fixture
     c = est.counters
     if c['imu_samples'] == 0:
         raise InputError('no IMU samples in the input: check --imu-topic')
+    if est.stamps_error:
+        raise InputError(est.stamps_error)
     if c['joint_samples'] == 0:
         names = ', '.join(fixture.joint_names)
         what = ('joint states lack the fixture joints ' + names if c['joint_missing_names']
