@@ -34,7 +34,9 @@ offset, latency value and sign, joint rate, encoder noise U(0.5, 20) urad, wrapp
 positions (1/2), joint velocities present (1/2), joint-name order (fixture, reversed,
 shuffled), an extra unknown joint (1/2), the random plan; and (1/2, not the control's nominal
 runs) a driver that drops messages: U(0.2, 2) % of the IMU samples and U(0, 5) % of the joint
-states lost in bursts of ~5.
+states lost in bursts of ~5; and (1/3, session 17) header stamps taken on receipt by the host:
+the IMU's U(0, j) late with j ~ U(0.05, 1.5) sample periods, the joint states' with
+j ~ U(0.05, 1) of theirs (``WorldConfig.imu_stamp_jitter_s``, ``joint_stamp_jitter_s``).
 
 Fractional design
 -----------------
@@ -266,6 +268,9 @@ class Drawn:
         if c.drop_fraction_imu or c.drop_fraction_joint:
             bits.append(f'dropped imu {100 * c.drop_fraction_imu:.1f}%/joints '
                         f'{100 * c.drop_fraction_joint:.1f}%')
+        if c.imu_stamp_jitter_s or c.joint_stamp_jitter_s:
+            bits.append(f'receipt stamps imu {1e3 * c.imu_stamp_jitter_s:.2g}ms/joints '
+                        f'{1e3 * c.joint_stamp_jitter_s:.2g}ms')
         return ', '.join(bits)
 
 
@@ -308,6 +313,10 @@ def draw_case(case: Case) -> Drawn:
         n = {'three_axis': 3, 'savage_2axis': 2}[case.fixture]
         cfg = dataclasses.replace(cfg, encoder_zero_rad=tuple(
             float(v) for v in rng.choice([-1.0, 1.0], n) * rng.uniform(0.5e-3, 5e-3, n)))
+    if not ctrl and rng.random() < 1.0 / 3.0:  # header stamps taken on receipt (drawn last)
+        cfg = dataclasses.replace(
+            cfg, imu_stamp_jitter_s=float(rng.uniform(0.05, 1.5)) / cfg.imu_rate_hz,
+            joint_stamp_jitter_s=float(rng.uniform(0.05, 1.0)) / cfg.joint_rate_hz)
     return Drawn(unit, mounting, cfg, plan_seed)
 
 

@@ -196,3 +196,24 @@ def test_a_new_time_base_restarts_the_record() -> None:
     assert c.smoothing
     assert 0.0 <= err.mean() < 3.0 * scale
     assert np.abs(err - err.mean()).max() < 5.0 * np.log(len(err) / REFIT_SAMPLES) * scale
+
+
+@pytest.mark.parametrize('rate_hz,jitter_s', [(10.0, 20e-3), (16.0, 40e-3), (10.0, 80e-3)])
+def test_slow_streams_decide_within_the_coarse_start(rate_hz: float, jitter_s: float) -> None:
+    """Joint states at 10-16 Hz would take 64-102 s for 1,024 stamps, beyond the first minute
+    the estimator's coarse start holds (its held stamps are revised only once the clock has
+    decided): the clock decides on 40 s of stamps (at least 257), and puts the later ones
+    on the sender's clock as well (one batch or many)."""
+    true, stamps = _stream(rate_hz, jitter_s, int(rate_hz * 400), seed=21)
+    c = StampClock()
+    out = _run(c, stamps, 7)
+    assert np.array_equal(_run(StampClock(), stamps, len(stamps)), out)
+    learnt = max(257, int(40.0 * rate_hz) + 1)
+    assert c.smoothing and c.revision_pending
+    assert len(c._rev_from) >= learnt - 8  # (stamps that happened to lie on the line stay)
+    err = (c.revise(out) - true).astype(float)
+    assert np.abs(err - np.median(err)).max() < 0.1 * jitter_s * 1e9
+    early = StampClock()
+    _run(early, stamps[:learnt + 2], 7)  # (+2: the span is of stamps, late by a jitter)
+    assert early.decided and early.smoothing
+    assert (stamps[learnt + 1] - stamps[0]) * 1e-9 < 42.0

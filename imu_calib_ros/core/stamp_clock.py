@@ -57,9 +57,13 @@ from scipy.optimize import minimize_scalar
 IntArray = NDArray[np.int64]
 FloatArray = NDArray[np.float64]
 
-#: stamps learnt before the clock decides (5 s at 200 Hz, 10 s of 100 Hz joint states: the
-#: start of a calibration, at rest, where a stamp's delay does no harm)
+#: stamps learnt before the clock decides (5 s at 200 Hz, 10 s of 100 Hz joint states), or
+#: those of the first LEARN_SPAN_NS when that is fewer (40 s of 10-25 Hz joint states), but at
+#: least MIN_LEARN_SAMPLES: the estimator's coarse start holds its first minute, and revises
+#: the learnt stamps in it (:meth:`StampClock.revise`) only once the clock has decided
 LEARN_SAMPLES = 1024
+LEARN_SPAN_NS = 40_000_000_000
+MIN_LEARN_SAMPLES = 257
 #: robust scatter of the intervals (a fraction of the period) above which stamps are taken
 #: for receipt times
 JITTER_FRACTION = 1e-3
@@ -211,12 +215,15 @@ class StampClock:
     def __call__(self, stamps_ns: IntArray) -> IntArray:
         t = np.asarray(stamps_ns, np.int64)
         if not len(t) or (self.decided and not self.smoothing):
-            return t
-        if not self.decided:
-            need = self.learn_samples - self._learnt  # the stamps learnt pass as given
+            return self._after_last(t)
+        if not self.decided:  # the stamps learnt pass as given
+            first = int(self._learn[0][0]) if self._learn else int(t[0])
+            by_span = int(np.searchsorted(t, first + LEARN_SPAN_NS)) + 1
+            need = min(self.learn_samples - self._learnt,
+                       max(by_span, MIN_LEARN_SAMPLES - self._learnt))
             self._learn.append(t[:need].copy())
             self._learnt += min(len(t), need)
-            if self._learnt < self.learn_samples:
+            if len(t) < need:
                 return t
             t_learnt = np.concatenate(self._learn)
             self._learn = []
@@ -275,8 +282,13 @@ class StampClock:
             bad = np.flatnonzero(r > spread + 0.1 * P)  # (a drop it cannot place)
             first = int(bad[-1]) + 1 if len(bad) else 0
             k[first:i0] = kb[first:]
-        sel = ~np.isnan(k)
-        self._add_revisions(t[sel], self._base_s + np.rint(a + P * (k[sel] - c)).astype(np.int64))
+        f = int(np.argmax(~np.isnan(k)))  # the counted stamps: t[f:]
+        line_ns = self._base_s + np.rint(a + P * (k[f:] - c)).astype(np.int64)
+        g = 0  # after stamps left as given: from the first whose instant is after the one before
+        if f:
+            after = line_ns > t[f - 1:len(t) - 1]
+            g = int(np.argmax(after)) if after.any() else len(line_ns)
+        self._add_revisions(t[f + g:], line_ns[g:])
         self._recording, self._given_last = True, int(t[-1])
 
     def _decide(self, t: IntArray) -> None:
@@ -407,8 +419,8 @@ class StampClock:
             n, bad = period_counts(d, self.period_ns)
             self._bad = np.concatenate([self._bad, bad])[-self.window:]
             if len(self._bad) >= 256 and self._bad.mean() > IRREGULAR_SHARE:
-                self.irregular, self.smoothing = True, False  # no longer periodic: as given
-                return t
+                self._give_up()  # no longer periodic: as given
+                return self._after_last(t)
             k = self._k_last + np.cumsum(n)
         s = (t - self._base_s).astype(float)
         out = np.empty(len(t))
@@ -421,8 +433,9 @@ class StampClock:
             if k is None and len(self._bad) >= 256 and self._bad.mean() > IRREGULAR_SHARE:
                 # one count per period does not hold (frequent drops in a wide spread of
                 # delays): as given from here on
-                self.irregular, self.smoothing = True, False
-                return np.concatenate([self._finish(out[:i], t[:i]), t[i:]])
+                self._give_up()
+                head = self._finish(out[:i], t[:i])
+                return np.concatenate([head, self._after_last(t[i:])])
             out[i:j] = a + P * (kc - c)
             self._hist_k = np.concatenate([self._hist_k, kc])[-self.window:]
             self._hist_s = np.concatenate([self._hist_s, s[i:j]])[-self.window:]
@@ -432,12 +445,30 @@ class StampClock:
                     self._recount()
                 self._fit()
                 if self.sequential and not self._counts_hold():
-                    self.irregular, self.smoothing = True, False  # as given from here on
-                    return np.concatenate([self._finish(out[:j], t[:j]), t[j:]])
+                    self._give_up()  # as given from here on
+                    head = self._finish(out[:j], t[:j])
+                    return np.concatenate([head, self._after_last(t[j:])])
             k_prev = float(self._hist_k[-1])
             i = j
         self._k_last, self._s_last = k_prev, int(t[-1])
         return self._finish(out, t)
+
+    def _give_up(self) -> None:
+        """The stream stopped fitting the line: stamps as given from here on, and no
+        revision of earlier ones (they rest on that line)."""
+        self.irregular, self.smoothing = True, False
+        self._rev_from, self._rev_to = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        self._recording = self.revision_pending = False
+
+    def _after_last(self, t: IntArray) -> IntArray:
+        """Stamps passed as given, kept after the last one given out (a line's instants
+        may lie after the first stamps passed as given once the clock gave up)."""
+        if len(t) and t[0] <= self._last_out:
+            idx = np.arange(len(t), dtype=np.int64)
+            t = np.maximum.accumulate(np.maximum(t, self._last_out + 1) - idx) + idx
+        if len(t):
+            self._last_out = max(self._last_out, int(t[-1]))
+        return t
 
     def _finish(self, out: FloatArray, t: IntArray) -> IntArray:
         """The line's instants ``out`` (from the base) as stamps, strictly increasing as the

@@ -1028,7 +1028,9 @@ class CalibrationEstimator:
             out['gyro_walk_to_noise_per_s'] = float(st.gyro_walk_to_noise_per_s
                                                     or MEMS_BIAS_WALK[0])
             out['gyro_walk_likelihood_bound_per_s'] = float(st.gyro_walk_bound_per_s)
-            out['gyro_walk_profile'] = [[float(f), float(d)] for f, d in st.gyro_walk_profile]
+            # (a pass that diverged or lost updates is infinitely unlikely: left out)
+            out['gyro_walk_profile'] = [[float(f), float(d)] for f, d in st.gyro_walk_profile
+                                        if math.isfinite(d)]
         return out
 
     def bias_walk_growth(self) -> tuple[float, float, float, float]:
