@@ -216,3 +216,23 @@ def test_the_command_names_the_walk_the_innovations_chose() -> None:
     assert note is not None and 'assume the MEMS floor (33 deg/h/sqrt(h)' in note, note
     assert 'ask for no more' in note and '0.012 of the white noise' in note, note
     assert '--imu' not in note
+
+
+def test_a_walk_profile_with_a_diverged_pass_still_makes_a_calibration_file(tmp_path) -> None:
+    """A walk profile's pass that diverged counts as infinitely unlikely
+    (``replay.profile_gyro_walk``); the file keeps the passes that ran: with the infinite one
+    the calibration file was refused ('gyro_walk_profile[0][1]: value inf is not finite'),
+    and the plain command exited 2 on 4 of the grid's runs with receipt-stamped streams."""
+    import dataclasses
+
+    from imu_calib_ros.core.calibration import _check_finite
+    from imu_calib_ros.core.estimator import CalibrationEstimator
+    fx = load_fixture('three_axis')
+    est = CalibrationEstimator(fx, None, EstimatorConfig())
+    est.start = dataclasses.replace(
+        _start(1.2e-4, 1.2e-3), gyro_walk_profile=((0.011, math.inf), (0.022, 0.0),
+                                                   (0.044, 2.5)),
+        gyro_walk_bound_per_s=0.03)
+    walk = est.bias_walk_summary()
+    assert walk['gyro_walk_profile'] == [[0.022, 0.0], [0.044, 2.5]]
+    _check_finite(walk, None, 'bias_walk')
