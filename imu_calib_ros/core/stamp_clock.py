@@ -15,7 +15,8 @@ when things happened", ICRA 2011) converges as ``spread / N^2`` in its slope, wh
 least-squares line converges as ``spread / N^1.5`` (a uniform 2 ms delay over 1,024 stamps:
 2 ns against 60 ns a period, 4 us against 120 us across 2,048 samples). :class:`StampClock`:
 
-1. learns from the first :data:`LEARN_SAMPLES` stamps the period (median interval), each
+1. learns from the first :data:`LEARN_SAMPLES` stamps (at most :data:`LEARN_SPAN_NS` of them,
+   at least :data:`MIN_LEARN_SAMPLES`) the period (median interval), each
    interval's count of periods (a dropped message: more than one) and the intervals' scatter
    about them; stamps whose scatter is below :data:`JITTER_FRACTION` of the period (a
    sender's own clock, a driver's steered clock, ns rounding) pass unchanged;
