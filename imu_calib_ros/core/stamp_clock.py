@@ -93,6 +93,13 @@ def period_counts(d: FloatArray, period: float) -> tuple[FloatArray, NDArray[np.
     return n, np.abs(d - n * period) > 0.4 * period
 
 
+def strictly_increasing(t: IntArray, floor: int) -> IntArray:
+    """Stamps ``t`` moved just enough to be strictly increasing and above ``floor`` (each at
+    least 1 ns after the one before, as stamps that went out must stay)."""
+    idx = np.arange(len(t), dtype=np.int64)
+    return np.maximum.accumulate(np.maximum(t, floor + 1) - idx) + idx
+
+
 def count_messages(s: FloatArray, line: tuple[float, float, float], delay_hi: float,
                    k_prev: float, fitted: bool = True) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Counts of stamps ``s`` on ``line`` (``a + P (k - c)``): one period per message after
@@ -257,11 +264,10 @@ class StampClock:
         moved = given != line_ns
         if moved.any():
             self._rev_from = np.concatenate([self._rev_from, given[moved]])
-            to = np.concatenate([self._rev_to, line_ns[moved]])
             # strictly increasing as the stamps they replace (a spike's count shared with
             # the stamp after it: 1 ns apart, as the replaced stamps went out)
-            idx = np.arange(len(to), dtype=np.int64)
-            self._rev_to = np.maximum.accumulate(to - idx) + idx
+            self._rev_to = strictly_increasing(
+                np.concatenate([self._rev_to, line_ns[moved]]), np.iinfo(np.int64).min + 1)
             self.revision_pending = True
 
     def _revise_learnt(self, t: IntArray) -> None:
@@ -465,8 +471,7 @@ class StampClock:
         """Stamps passed as given, kept after the last one given out (a line's instants
         may lie after the first stamps passed as given once the clock gave up)."""
         if len(t) and t[0] <= self._last_out:
-            idx = np.arange(len(t), dtype=np.int64)
-            t = np.maximum.accumulate(np.maximum(t, self._last_out + 1) - idx) + idx
+            t = strictly_increasing(t, self._last_out)
         if len(t):
             self._last_out = max(self._last_out, int(t[-1]))
         return t
@@ -477,8 +482,7 @@ class StampClock:
         if not len(out):
             return t[:0]
         line_ns = self._base_s + np.rint(out).astype(np.int64)
-        idx = np.arange(len(line_ns), dtype=np.int64)
-        res = np.maximum.accumulate(np.maximum(line_ns, self._last_out + 1) - idx) + idx
+        res = strictly_increasing(line_ns, self._last_out)
         self._last_out = int(res[-1])
         if self._recording:  # held back behind the learnt stamps: their revisions too
             held = line_ns <= self._given_last
