@@ -99,6 +99,14 @@ CASES = [
                                             imu_stamp_jitter_s=2e-3, seed=14),
      'a 1 kHz IMU stamped on receipt, U(0, 2 ms) late (two periods): every late interval a '
      '"gap", bridged one by one (a 10-minute bag ran 8+ minutes before it was killed)'),
+    ('tactical-slow-joint-receipt-drops',
+     dict(unit='tactical', size=0.2, mount_deg=3.0, joint_rate_hz=14.4, imu_rate_hz=200.0,
+          joint_stamp_jitter_s=0.036, drop_fraction_joint=0.05, seed=15),
+     '14.4 Hz joint states stamped on receipt, U(0, 36 ms) late (half a period), 5 % of them '
+     'dropped in bursts: no learnt window free of drops, the clock gave up ("the gyro rates '
+     'do not follow the fixture\'s joint rotations", 25 % left); counted by phase, a later '
+     'pass still navigated the first 40 s on the stamps as given (177 updates gated, '
+     'refused) until the passes shared the first one\'s revisions'),
 ]
 
 

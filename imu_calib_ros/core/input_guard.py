@@ -281,7 +281,9 @@ class InputGuard:
         long_gaps, gaps = self._gaps(kt)
         self._watch_scatter(len(kt), len(gaps))
         self._log()
-        return ImuVerdict(keep, long_gaps, gaps, kt if self.imu_clock.smoothing else None)
+        c = self.imu_clock
+        return ImuVerdict(keep, long_gaps, gaps,
+                          kt if c.smoothing or c.hindsight is not None else None)
 
     def _check_one(self, t: int, w: FloatArray, f: FloatArray,
                    frame_id: str) -> ImuVerdict | None:

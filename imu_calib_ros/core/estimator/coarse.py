@@ -146,6 +146,10 @@ class CoarseStart:
     gyro_walk_profile: tuple[tuple[float, float], ...] = ()
     #: the least share of gravity the windows put along any IMU direction (least_reach)
     accel_reach: float = 1.0
+    #: the (IMU, joint) stamp clocks' revisions of the held stamps the start was measured on
+    #: (:class:`~..stamp_clock.StampRevisions`, None where none): carried to the later passes
+    #: with the start, whose clocks apply them (:attr:`~..stamp_clock.StampClock.hindsight`)
+    stamp_revisions: tuple[Any, Any] = (None, None)
 
     def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT
                    ) -> bool:

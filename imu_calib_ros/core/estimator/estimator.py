@@ -184,6 +184,10 @@ class CalibrationEstimator:
         self.guard_config: GuardConfig = gcfg
         self._guard = InputGuard(gcfg, self.fixture.site.gravity, self._joint_names,
                                  self.fixture.angular_axes_enu)
+        # the stamps the start's held data were revised to, for this pass too
+        self._revised: tuple[Any, Any] = (None, None) if self.start is None \
+            else self.start.stamp_revisions
+        self._guard.imu_clock.hindsight, self._guard.joint_clock.hindsight = self._revised
         self._diverged: str | None = None
         self._good: deque[Estimate] = snapshots(gcfg, cfg.block_chunks)  # healthy blocks
         self._last_good_state: Estimate | None = None
@@ -676,10 +680,17 @@ class CalibrationEstimator:
         velocity update gated from then on, and a diverged run; with the true latency it
         passed (bench_corners ``cmems_j10_drops_im@srt2``). A bound, not a model: the error
         of a constant latency has one sign through a turn, and each update takes it as
-        independent (a latency state would model it)."""
+        independent (a latency state would model it). With it, in quadrature, the error the
+        joint clock leaves in stamps taken on receipt
+        (:attr:`~..stamp_clock.StampClock.timing_sigma_ns`: 0.1-0.3 ms for a minute after it
+        decided on 40 s of 14 Hz joint states with 36 ms of delays; the tactical grid run
+        ``tactical-s0.2-large-slow_joints-random@three_axis-0`` gated 118 updates there and
+        failed its self-check)."""
         st = self.start
         sd = 0.0 if st is None else float(st.joint_latency_sigma_s)
-        if not (math.isfinite(sd) and sd > 0.0):
+        sd = math.hypot(sd if math.isfinite(sd) else 0.0,
+                        1e-9 * self._guard.joint_clock.timing_sigma_ns)
+        if not sd > 0.0:
             return None
         w_enu = np.einsum('bij,bj->bi', blk.R_enu_imu_end, blk.omega_ib_end_rad_s)
         w_enu = w_enu - self.fixture.site.omega_ie_enu  # the fixture's own rate
@@ -905,6 +916,8 @@ class CalibrationEstimator:
         if why is not None:  # refused before anything changes: every later push refuses too
             raise InputError(why)
         held, self._boot = self._boot.items, None
+        if st is not None:
+            st = dataclasses.replace(st, stamp_revisions=self._revised)
         self.start = st
         self._configure()
         self._reset_filter_side()
@@ -931,6 +944,8 @@ class CalibrationEstimator:
             g.imu_clock.revise if g.imu_clock.revision_pending else None,
             g.joint_clock.revise if g.joint_clock.revision_pending else None, g.gap_indices)
         g.flagged['gap'] += change
+        self._revised = tuple(c.revisions() if c.revision_pending else r  # type: ignore[assignment]
+                              for c, r in zip(clocks, self._revised))
         for c in clocks:
             c.revision_pending = False
         self._sync_input_counters()
