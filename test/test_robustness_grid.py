@@ -107,6 +107,13 @@ CASES = [
      'do not follow the fixture\'s joint rotations", 25 % left); counted by phase, a later '
      'pass still navigated the first 40 s on the stamps as given (177 updates gated, '
      'refused) until the passes shared the first one\'s revisions'),
+    ('nav-1khz-joint-receipt-drops',
+     dict(unit='nav', size=1.0, mount_deg=3.0, joint_rate_hz=1000.0, imu_rate_hz=200.0,
+          joint_stamp_jitter_s=4.8e-3, drop_fraction_joint=0.03, seed=16),
+     '1 kHz joint states stamped on receipt, U(0, 4.8 ms) late, 3 % dropped: the joint clock '
+     'cannot count them and passes them as given; the coarse start\'s 10 ms groups left 3 % '
+     'of the rates in timing noise: "the gyro rates do not follow the fixture\'s joint '
+     'rotations", refused; groups now as long as the stamps\' scatter needs'),
 ]
 
 
@@ -143,7 +150,12 @@ def test_plain_command_is_honest_on_a_world_unit(name: str, kw: dict, why: str,
     # interval means describe the middle of the interval before their stamp: half a period
     # more latency, which the measurement takes up
     half = 0.5 / kw.get('imu_rate_hz', 100.0) if kw.get('sample_type') == 'point' else 0.0
-    assert abs(cs['joint_latency_s'] - kw.get('latency_ms', 0.0) * 1e-3 - half) < 2e-4, cs
+    # joint stamps taken on receipt with delays over more than a period pass as given (no
+    # clock can count them): their mean delay is a latency, somewhere within the delays
+    jit = kw.get('joint_stamp_jitter_s', 0.0)
+    late = jit if jit * kw.get('joint_rate_hz', 100.0) > 1.0 else 0.0
+    lat = cs['joint_latency_s'] - kw.get('latency_ms', 0.0) * 1e-3 - half
+    assert -2e-4 < lat < late + 2e-4, cs
     noise = truth.data['imu_calibration']['noise']
     # noise densities measured from the stationary windows (no grade given), within 20 %
     assert cs['gyro_noise_rad_s_rt_hz'] == pytest.approx(noise['gyro_noise_rad_s_rt_hz'],

@@ -85,6 +85,7 @@ def test_event_driven_streams_pass_as_given() -> None:
         c = StampClock()
         assert np.array_equal(_run(c, events, 300), events)
         assert c.irregular and not c.smoothing
+        assert not c.scattered and c.timing_sigma_ns == 0.0  # exact stamps
 
 
 def _miscounted(out: np.ndarray, true: np.ndarray, period_ns: float) -> np.ndarray:
@@ -152,6 +153,11 @@ def test_frequent_drops_in_a_wide_spread_end_as_given() -> None:
     out = _run(c, stamps, 500)
     assert c.irregular and not c.smoothing
     assert np.array_equal(out[-10_000:], stamps[-10_000:])
+    # what the stamps as given scatter by, for the encoder attitude's noise and the coarse
+    # start's joint groups: within a factor 1.5 of their scatter about the instants
+    assert c.scattered
+    spread = float(np.std(stamps - true))
+    assert spread / 1.5 < c.timing_sigma_ns < 1.5 * spread
 
 
 @pytest.mark.parametrize('rate_hz,jitter_s', [(200.0, 2e-3), (1000.0, 2e-3)])

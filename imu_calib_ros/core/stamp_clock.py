@@ -304,6 +304,9 @@ class StampClock:
         #: pass navigated the first 40 s of 14 Hz joint states on stamps up to 36 ms late:
         #: 116 updates gated and a failed self-check on a tactical grid run)
         self.hindsight: StampRevisions | None = None
+        #: the clock gave up on receipt delays it could not count (not an event-driven
+        #: publisher's exact stamps): those passed as given scatter by ``jitter_ns / sqrt 2``
+        self.scattered = False
 
     @property
     def timing_sigma_ns(self) -> float:
@@ -312,16 +315,17 @@ class StampClock:
         centroid) and the slope's error (``~ 4 j / W^2`` a stamp) carried half a window and
         a refit beyond it, ``(j / W) (3 + 4 R / W)``: 0.3 ms on 577 joint states at 14 Hz
         with 36 ms of delays, just after the clock decided, 20 us once it rests on 4,096;
-        stamps passed as given that scatter (not put back): their own scatter about the
-        mean delay; 0 for a sender's clock and before the clock decides (the learnt stamps
-        are revised for the consumer that holds them)."""
+        stamps passed as given after the clock gave up on receipt delays
+        (:attr:`scattered`): their own scatter about the mean delay; 0 for a sender's clock,
+        an event-driven publisher's exact stamps and before the clock decides (the learnt
+        stamps are revised for the consumer that holds them)."""
         if not self.decided or self.period_ns <= 0.0:
             return 0.0
         if self.smoothing:
             j = self._delay_hi if self.sequential else 2.5 * self.jitter_ns  # (j / sqrt 6)
             w = max(len(self._hist_k), 1)
             return j / w * (3.0 + 4.0 * self.refit / w)
-        if self.irregular and self.jitter_ns > JITTER_FRACTION * self.period_ns:
+        if self.scattered:
             return self.jitter_ns / np.sqrt(2.0)  # (the intervals scatter as two delays)
         return 0.0
 
@@ -586,6 +590,12 @@ class StampClock:
         """The stream stopped fitting the line: stamps as given from here on, and no
         revision of earlier ones (they rest on that line)."""
         self.irregular, self.smoothing = True, False
+        # receipt delays that could not be counted: the stamps pass as given, late by their
+        # own delays; their scatter from the last stamps' intervals (two delays each, drops
+        # included: a bound)
+        self.scattered = True
+        if len(self._hist_s) > 8:
+            self.jitter_ns = max(self.jitter_ns, float(np.std(np.diff(self._hist_s))))
         self._rev_from, self._rev_to = np.zeros(0, np.int64), np.zeros(0, np.int64)
         self._recording = self.revision_pending = False
 

@@ -39,6 +39,9 @@ class Bootstrap:
         self.items: list[HeldItem] = []
         self._span = (0, 0)  # first and newest IMU stamp held
         self._next_check_s = 0.0
+        #: the scatter [s] of joint stamps the joint clock could not put back (set by the
+        #: estimator before each measurement: coarse.thin_joint_states)
+        self.joint_timing_sigma_s = 0.0
 
     def hold_joints(self, t: IntArray, q: FloatArray) -> None:
         """Hold joint states the guard accepted (fixture order, not yet unwrapped)."""
@@ -132,7 +135,8 @@ class Bootstrap:
                 st = coarse_start(*arrays, fixture,
                                   tol_rad=self.config.stationary_joint_tolerance_rad,
                                   only_determined=not final,
-                                  point_samples=self.config.imu_sample_type == 'point')
+                                  point_samples=self.config.imu_sample_type == 'point',
+                                  joint_timing_sigma_s=self.joint_timing_sigma_s)
             except NoRotation:
                 pass
             except (ValueError, np.linalg.LinAlgError) as exc:

@@ -570,10 +570,15 @@ def _cluster_lstsq(X: FloatArray, y: FloatArray, block: NDArray[np.intp], beta0:
 #: joint states closer than this are averaged in groups before the spline
 #: (:func:`thin_joint_states`)
 JOINT_BIN_S = 0.01
+#: joint stamps that scatter (taken on receipt, not put back on the sender's clock): groups
+#: long enough that their mean stamps' scatter is at most this share of a rate over one
+#: group, up to JOINT_BIN_MAX_S
+JOINT_RATE_TIMING_SHARE = 0.005
+JOINT_BIN_MAX_S = 0.1
 
 
-def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOINT_BIN_S
-                      ) -> tuple[NDArray[np.int64], FloatArray]:
+def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOINT_BIN_S,
+                      timing_sigma_s: float = 0.0) -> tuple[NDArray[np.int64], FloatArray]:
     """Joint states faster than ``1 / bin_s`` averaged in groups of ``k`` consecutive
     states (stamps and angles alike), ``k`` the nearest whole number of periods per bin.
 
@@ -582,11 +587,22 @@ def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOI
     noise, which diluted the regressors and failed the "the gyro rates do not follow the
     fixture" check on a navigation unit. The mean of ``k`` states is the angle at their mean
     stamp to ``qdd dt^2 k^2 / 24`` (0.4 urad at 1 rad/s^2 over 10 ms) with ``1/sqrt(k)`` of
-    the noise; at 100 Hz and below nothing changes."""
+    the noise; at 100 Hz and below nothing changes.
+
+    ``timing_sigma_s``: the scatter of the stamps about their instants (stamps taken on
+    receipt that the joint clock could not put back: :attr:`~..stamp_clock.StampClock.
+    timing_sigma_ns`). A group's mean stamp scatters by ``sigma / sqrt(k)``, a rate over
+    ``k dt`` by ``sqrt(2) sigma / (k^1.5 dt)`` of itself: groups of at least
+    ``(sqrt(2) sigma / (share dt))^(2/3)`` states (:data:`JOINT_RATE_TIMING_SHARE`, up to
+    :data:`JOINT_BIN_MAX_S`): 1 kHz joint states 0-4.8 ms late left 3 % of the rates
+    unexplained in 10 ms groups, and the plain command refused the fixture."""
     if len(t_ns) < 4:
         return t_ns, q
     dt = float(np.median(np.diff(t_ns))) * 1e-9
     k = int(round(bin_s / dt)) if dt > 0 else 1
+    if timing_sigma_s > 0.0 and dt > 0:
+        k_t = (math.sqrt(2.0) * timing_sigma_s / (JOINT_RATE_TIMING_SHARE * dt)) ** (2 / 3)
+        k = max(k, min(int(math.ceil(k_t)), int(JOINT_BIN_MAX_S / dt)))
     if k < 2:
         return t_ns, q
     m = len(t_ns) // k
@@ -781,7 +797,8 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                  t_joint_ns: NDArray[np.int64], q_joint: FloatArray, fixture: Fixture,
                  min_static_s: float = 1.0, tol_rad: float = 1e-4,
                  max_samples: int = 60_000, only_determined: bool = False,
-                 point_samples: bool = False) -> CoarseStart | None:
+                 point_samples: bool = False, joint_timing_sigma_s: float = 0.0
+                 ) -> CoarseStart | None:
     """The start point (:func:`_coarse_start`), with a table's encoder zeros fitted first
     (:func:`fit_joint_zeros`); when the start with them is implausible or contradicts the
     data (a fixture error the zeros tried to explain: a 0.3 deg tilted axis fitted as a
@@ -791,13 +808,14 @@ def coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
             only_determined, point_samples)
     applied: list[bool] = []  # set by _coarse_start when it applied fitted zeros
     try:
-        return _coarse_start(*args, joint_zeros=True, zeros_applied=applied)
+        return _coarse_start(*args, joint_zeros=True, zeros_applied=applied,
+                             joint_timing_sigma_s=joint_timing_sigma_s)
     except NoRotation:
         raise
     except (ValueError, np.linalg.LinAlgError):
         if not applied:  # the same start without zeros: the same error
             raise
-        return _coarse_start(*args, joint_zeros=False)
+        return _coarse_start(*args, joint_zeros=False, joint_timing_sigma_s=joint_timing_sigma_s)
 
 
 def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
@@ -805,7 +823,8 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
                   min_static_s: float = 1.0, tol_rad: float = 1e-4,
                   max_samples: int = 60_000, only_determined: bool = False,
                   point_samples: bool = False, joint_zeros: bool = True,
-                  zeros_applied: list[bool] | None = None) -> CoarseStart | None:
+                  zeros_applied: list[bool] | None = None, joint_timing_sigma_s: float = 0.0
+                  ) -> CoarseStart | None:
     """The start point from interval-mean IMU samples and (unwrapped) joint states.
 
     ``only_determined``: None, before the gyro fits, when the accelerometer fit already shows
@@ -825,7 +844,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     t0 = int(t_imu_ns[0])
     dt = float(np.median(np.diff(t_imu_ns))) * 1e-9
     ts = (t_imu_ns - t0).astype(np.float64) * 1e-9
-    tj_ns, qj = thin_joint_states(t_joint_ns, q_joint)
+    tj_ns, qj = thin_joint_states(t_joint_ns, q_joint, timing_sigma_s=joint_timing_sigma_s)
     tj = (tj_ns - t0).astype(np.float64) * 1e-9
     spline = CubicSpline(tj, qj, axis=0)
     wins = static_windows(t_joint_ns, q_joint, t_imu_ns, w, f, min_static_s, tol_rad)

@@ -909,6 +909,8 @@ class CalibrationEstimator:
         held input. Returns whether the bootstrap ended."""
         assert self._boot is not None
         self._revise_held_stamps()
+        jc = self._guard.joint_clock
+        self._boot.joint_timing_sigma_s = 1e-9 * jc.timing_sigma_ns if jc.scattered else 0.0
         ready, st = self._boot.measure(self.fixture, final, t_cut_ns)
         if not ready:
             return False
