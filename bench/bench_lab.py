@@ -11,7 +11,9 @@ space, rate tests of each joint in both directions, and fixtures of other axis o
 mountings at other sites (Sydney, the equator at 2,800 m, Svalbard with a measured gravity,
 Cape Town). The unit, its mounting error, the timing and the joint-message form are drawn per
 seed as the grid draws them (:func:`bench_robustness.draw_case`, every timing level, large
-mounting: 1-10 deg, 5-50 mm, encoder zeros), the bag is written by the world
+mounting: 1-10 deg, 5-50 mm, encoder zeros; and, session 18, the table's base off level:
+0.05-2 mrad under navigation and tactical units, 1-20 mrad under MEMS), the bag is written by
+the world
 (:mod:`imu_calib_ros.testing.world_sim`) and the command is exactly what a user types.
 
 Case names are ``UNIT@FIXTURE_sSEED``. Per case: exit status, the command's last stderr line
@@ -68,8 +70,15 @@ def draw(unit: str, fixture: str, seed: int) -> br.Drawn:
     n = len(lab_motion.LAB_FIXTURES[fixture]['joints'])
     rng = np.random.default_rng([case.seed, n])
     zeros = tuple(float(v) for v in rng.choice([-1.0, 1.0], n) * rng.uniform(0.5e-3, 5e-3, n))
+    # the table's base off level (session 18, drawn after the zeros so that they stay): a
+    # rate table levelled to 0.05-2 mrad for navigation and tactical units, a bench or a
+    # desk 1-20 mrad (up to 1.1 deg) for MEMS, about a random horizontal axis
+    lo, hi = (0.05e-3, 2e-3) if unit in ('nav', 'tactical') else (1e-3, 20e-3)
+    az, mag = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(lo, hi)
+    tilt = (float(mag * np.cos(az)), float(mag * np.sin(az)))
     return br.Drawn(drawn.unit, drawn.mounting,
-                    dataclasses.replace(drawn.config, encoder_zero_rad=zeros), drawn.plan_seed)
+                    dataclasses.replace(drawn.config, encoder_zero_rad=zeros,
+                                        base_tilt_rad=tilt), drawn.plan_seed)
 
 
 def run(name: str, out_root: str, repo: str) -> dict[str, Any]:

@@ -265,6 +265,8 @@ class Drawn:
         if c.encoder_zero_rad:
             bits.append('zeros (' + ', '.join(f'{1e3 * v:+.1f}' for v in c.encoder_zero_rad)
                         + ') mrad')
+        if any(c.base_tilt_rad):
+            bits.append(f'base off level {1e3 * math.hypot(*c.base_tilt_rad):.2f} mrad')
         if c.drop_fraction_imu or c.drop_fraction_joint:
             bits.append(f'dropped imu {100 * c.drop_fraction_imu:.1f}%/joints '
                         f'{100 * c.drop_fraction_joint:.1f}%')

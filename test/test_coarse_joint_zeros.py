@@ -1,7 +1,8 @@
-"""A turntable's encoder zeros from the stationary windows' gravity (coarse.fit_joint_zeros):
-the middle joint's zero of a three-axis table is recovered within its sigma whatever the
-accelerometer's raw errors; the outer (heading) and inner (mounting) ones are not fitted; a
-table without zero errors gets none."""
+"""A turntable's encoder zeros and its base's tilt from the stationary windows' gravity
+(coarse.fit_joint_zeros): the middle joint's zero of a three-axis table and the tilt of its
+base are recovered within their sigmas whatever the accelerometer's raw errors; the outer
+(heading) and inner (mounting) zeros are not fitted; a level table without zero errors gets
+none."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,9 +15,10 @@ from imu_calib_ros.core.fixture import Fixture
 DT, N, NOISE_A = 0.01, 1000, 1e-3  # 10 s windows at 100 Hz, 100 ug/sqrt(Hz)
 
 
-def windows(zero: np.ndarray, rng: np.random.Generator
+def windows(zero: np.ndarray, rng: np.random.Generator, tilt: tuple[float, float] = (0.0, 0.0)
             ) -> tuple[list[StaticWindow], Fixture]:
     fx = Fixture.from_yaml(resolve_config_file('three_axis', 'fixtures'))
+    true = fx.with_base_tilt(tilt)
     # raw accelerometer errors: scale/misalignment 1 %, bias 10 mg
     A = np.eye(3) + rng.normal(0.0, 0.01, (3, 3))
     b = rng.normal(0.0, 0.1, 3)
@@ -24,7 +26,7 @@ def windows(zero: np.ndarray, rng: np.random.Generator
     out = []
     for k in range(24):  # the poses of a plan: every joint at multiples of 90 deg
         q = np.radians(90.0 * rng.integers(0, 4, 3))
-        R = fx.R_enu_imu(q + zero)
+        R = true.R_enu_imu(q + zero)
         f = A @ (R.T @ g) + b + rng.normal(0.0, NOISE_A / np.sqrt(N * DT), 3)
         out.append(StaticWindow(k * 20_000_000_000, k * 20_000_000_000 + 10_000_000_000,
                                 q, np.zeros(3), f, N))
@@ -36,7 +38,8 @@ def test_the_middle_zero_is_recovered(seed: int) -> None:
     rng = np.random.default_rng(seed)
     zero = np.array([4e-3, -3e-3, 2e-3])
     wins, fx = windows(zero, rng)
-    z, s = fit_joint_zeros(fx, wins, NOISE_A, DT)
+    z, s, t, ts = fit_joint_zeros(fx, wins, NOISE_A, DT)
+    assert np.all(t == 0.0), (t, ts)  # a level base
     assert abs(z[1] - zero[1]) < 4 * s[1] and s[1] < 1e-4, (z, s)
     assert z[0] == 0.0 and z[2] == 0.0  # heading (outer) and mounting (inner): not gravity's
 
@@ -44,18 +47,34 @@ def test_the_middle_zero_is_recovered(seed: int) -> None:
 def test_no_zero_error_gives_none() -> None:
     for seed in range(10):
         wins, fx = windows(np.zeros(3), np.random.default_rng(100 + seed))
-        z, s = fit_joint_zeros(fx, wins, NOISE_A, DT)
-        assert np.all(z == 0.0), (seed, z, s)  # 3 sigma: 0.27 % per seed by chance
+        z, s, t, ts = fit_joint_zeros(fx, wins, NOISE_A, DT)
+        # 3 sigma: 0.27 % per value and seed by chance
+        assert np.all(z == 0.0) and np.all(t == 0.0), (seed, z, s, t, ts)
 
 
 def test_too_few_windows_leave_the_zeros_unknown_not_absent() -> None:
     """On fewer than six windows the zeros are not fitted, and their sigma is the prior's (a
     start is then not determined: CoarseStart.determined), not inf (which means "gravity does
     not show this zero" and let a start on three windows go with 4.4 mrad of zeros unfitted)."""
-    from imu_calib_ros.core.estimator.coarse import JOINT_ZERO_PRIOR_RAD
+    from imu_calib_ros.core.estimator.coarse import BASE_TILT_PRIOR_RAD, JOINT_ZERO_PRIOR_RAD
     wins, fx = windows(np.array([4e-3, -3e-3, 2e-3]), np.random.default_rng(4))
-    z, s = fit_joint_zeros(fx, wins[:5], NOISE_A, DT)
-    assert np.all(z == 0.0)
+    z, s, t, ts = fit_joint_zeros(fx, wins[:5], NOISE_A, DT)
+    assert np.all(z == 0.0) and np.all(t == 0.0)
     assert np.all(s[:2] == JOINT_ZERO_PRIOR_RAD) and np.isinf(s[2])  # the last: the mounting
-    z, s = fit_joint_zeros(fx, wins, NOISE_A, DT)
+    assert np.all(ts == BASE_TILT_PRIOR_RAD)
+    z, s, t, ts = fit_joint_zeros(fx, wins, NOISE_A, DT)
     assert s[1] < 1e-4  # enough windows: the middle zero is fitted
+
+
+@pytest.mark.parametrize('seed,tilt', [(5, (1e-3, -2e-3)), (6, (-1.5e-2, 4e-3)), (7, (2e-4, 0.0))])
+def test_a_base_off_level_is_recovered_with_the_zeros(seed: int, tilt: tuple[float, float]
+                                                      ) -> None:
+    """A base 0.2-16 mrad off level (a levelled rate table to a desk): its tilt about east
+    and north within 4 of its sigmas (0.04-0.15 mrad on these windows), the middle
+    zero still within 4 of its own."""
+    rng = np.random.default_rng(seed)
+    zero = np.array([4e-3, -3e-3, 2e-3])
+    wins, fx = windows(zero, rng, tilt)
+    z, s, t, ts = fit_joint_zeros(fx, wins, NOISE_A, DT)
+    assert np.all(np.abs(t - np.array(tilt)) < 4 * ts) and np.all(ts < 5e-4), (t, ts)
+    assert abs(z[1] - zero[1]) < 4 * s[1], (z, s)

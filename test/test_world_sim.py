@@ -21,8 +21,9 @@ import yaml
 from imu_calib_ros.testing.world_cases import compare_calibration, make_case
 from imu_calib_ros.testing.world_sim import (EARTH_RATE_RAD_S, Mounting, Unit, UnitErrors,
                                              UnitNoise, WorldConfig, WorldFixture, _Instant,
-                                             body_motion, draw_unit, generate, joint_profile,
-                                             normal_gravity, sensor_outputs, write_bag)
+                                             body_motion, draw_unit, fixture_path, generate,
+                                             joint_profile, normal_gravity, sensor_outputs,
+                                             write_bag)
 from imu_calib_ros.testing.world_units import SPECS, UNIT_KINDS
 
 LAT_DEG = 48.0
@@ -195,6 +196,40 @@ def test_specific_force_includes_lever_arm_centripetal_and_coriolis(tmp_path: Pa
     f_enu = np.cross(we, v) + 2 * np.cross(om, v) + np.cross(om, np.cross(om, p)) + \
         [0, 0, fx.gravity]
     assert np.abs(R.T @ f_enu - f[0]).max() < 1e-15
+
+
+def test_a_base_off_level_turns_gravity_and_earth_rate_not_the_table_rates() -> None:
+    """A base tilted by (t_e, t_n) about ENU east and north: at rest the IMU reads gravity
+    tilted by it, while a turn about the (tilted) outer axis reads the same rate in the IMU
+    frame as on a level base; the world's kinematics agree with the product's fixture
+    (``Fixture.with_base_tilt``, written on its own) to rounding."""
+    from scipy.spatial.transform import Rotation
+
+    from imu_calib_ros.core.fixture import load_fixture
+    fx = WorldFixture.from_yaml(fixture_path('three_axis'))
+    t = np.array([3e-3, -2e-3])
+    base = Rotation.from_rotvec([t[0], t[1], 0.0])
+    zero = np.zeros((1, 3))
+    m = body_motion(fx, Mounting(), zero, zero, zero, base)
+    _, _, f = sensor_outputs(UnitErrors.zeros(), m)
+    _, _, f_level = sensor_outputs(UnitErrors.zeros(), body_motion(fx, Mounting(), zero, zero,
+                                                                   zero))
+    # gravity as seen on the base's own axes: up, tilted back by t (about east: +y)
+    g_base = base.inv().apply([0.0, 0.0, fx.gravity])
+    assert g_base[1] == pytest.approx(fx.gravity * t[0], rel=1e-3)
+    R_level = body_motion(fx, Mounting(), zero, zero, zero).R_enu_imu
+    assert np.abs(f[0] - R_level.inv().apply(g_base)).max() < 1e-6  # (+ earth's centripetal)
+    assert np.linalg.norm(f[0] - f_level[0]) == pytest.approx(fx.gravity * np.linalg.norm(t),
+                                                              rel=1e-3)
+    qd = np.array([[0.5, 0.0, 0.0]])
+    level = body_motion(fx, Mounting(), zero, qd, zero)
+    tilted = body_motion(fx, Mounting(), zero, qd, zero, base)
+    d = tilted.omega_ib_imu_rad_s - level.omega_ib_imu_rad_s
+    assert np.abs(d).max() < 1e-3 * EARTH_RATE_RAD_S * 10  # only earth rate turns, by t
+    q = np.random.default_rng(4).uniform(-3.0, 3.0, (7, 3))
+    m = body_motion(fx, Mounting(), q, np.zeros_like(q), np.zeros_like(q), base)
+    R_product = load_fixture('three_axis').with_base_tilt(t).R_enu_imu(q)
+    assert np.abs(R_product - m.R_enu_imu.as_matrix()).max() < 1e-14
 
 
 # ------------------------------------------------------------------------ quadrature

@@ -45,6 +45,7 @@ already contains the centrifugal acceleration at the site.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import warnings
@@ -57,7 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 from .config import load_yaml, require_mapping, vector
 from .earth import Site
 from .errors import ConfigError
-from .rotation import matrix_to_rpy, rot_axis_angle, rpy_to_matrix
+from .rotation import matrix_to_rpy, rot_axis_angle, rotvec_to_matrix, rpy_to_matrix
 
 FloatArray = NDArray[np.float64]
 
@@ -249,6 +250,24 @@ class Fixture:
         R_true = self.R_joint_imu @ rpy_to_matrix(np.asarray(drpy_rad, dtype=float))
         return Fixture(self.site, self.joints, matrix_to_rpy(R_true),
                        self.imu_xyz_m + np.asarray(dxyz_m, dtype=float), self.source)
+
+    def with_base_tilt(self, tilt_en_rad: ArrayLike) -> 'Fixture':
+        """The same fixture on a base that is not levelled: the first joint's parent frame
+        turned by the rotation vector ``(t_e, t_n, 0)`` in ENU (``R_enu_base``), everything
+        after it with it. A fixture file's first axis is in ENU (CONTRACT 2); a real table
+        stands a fraction of a milliradian to a degree off level, which only gravity shows
+        (the IMU-frame rates do not depend on it: :func:`.estimator.coarse.fit_joint_zeros`).
+        """
+        t = np.asarray(tilt_en_rad, dtype=float)
+        if t.shape != (2,) or not np.all(np.isfinite(t)):
+            raise ValueError(f'a base tilt is two finite angles [rad], got {t}')
+        if not np.any(t):
+            return self
+        R_tilt = rotvec_to_matrix(np.array([t[0], t[1], 0.0]))
+        j0 = self.joints[0]
+        first = dataclasses.replace(
+            j0, origin_R=R_tilt if j0.origin_R is None else R_tilt @ j0.origin_R)
+        return self.with_joints((first,) + self.joints[1:])
 
     def with_joints(self, joints: 'tuple[Joint, ...]') -> 'Fixture':
         """The same fixture (site, IMU mounting) with another joint chain (e.g. an arm with

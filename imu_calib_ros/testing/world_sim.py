@@ -214,7 +214,7 @@ class BodyMotion:
 
 
 def body_motion(fx: WorldFixture, mounting: Mounting, q: ArrayLike, qd: ArrayLike,
-                qdd: ArrayLike) -> BodyMotion:
+                qdd: ArrayLike, base: Rotation | None = None) -> BodyMotion:
     """Attitude, inertial rate and angular acceleration of the IMU (module docstring).
 
     Parameters
@@ -223,10 +223,15 @@ def body_motion(fx: WorldFixture, mounting: Mounting, q: ArrayLike, qd: ArrayLik
     mounting : Mounting
     q, qd, qdd : (N, n) array_like
         Joint angles [rad], rates [rad/s], accelerations [rad/s^2].
+    base : Rotation, optional
+        The table's base (the first joint's parent frame) in ENU: a table not levelled
+        (``WorldConfig.base_tilt_rad``); None: the base is ENU, as the fixture file says.
     """
     q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, qd, qdd))
     n_t = q.shape[0]
     omega = np.tile(fx.omega_ie_enu, (n_t, 1))  # ENU frame: inertial rate, constant in ENU
+    if base is not None:
+        omega = base.inv().apply(omega)  # in the base frame
     alpha = np.zeros((n_t, 3))
     chain: Rotation | None = None
     for i in range(fx.n_joints):
@@ -239,7 +244,7 @@ def body_motion(fx: WorldFixture, mounting: Mounting, q: ArrayLike, qd: ArrayLik
         chain = R_i if chain is None else chain * R_i
     assert chain is not None
     R_n_imu = fx.R_joint_imu_nominal * mounting.rotation
-    R_enu_imu = chain * R_n_imu
+    R_enu_imu = chain * R_n_imu if base is None else base * chain * R_n_imu
     ref_imu = R_n_imu.inv().apply(fx.xyz_nominal_m + np.asarray(mounting.offset_m, float))
     f0 = R_enu_imu.inv().apply(np.array([0.0, 0.0, fx.gravity]))
     return BodyMotion(R_enu_imu, R_n_imu.inv().apply(omega), R_n_imu.inv().apply(alpha),
@@ -294,6 +299,8 @@ class WorldConfig:
     fixture does not know (CONTRACT 1: ignored by consumers). ``encoder_zero_rad``: each
     joint's encoder reads its true angle minus this (a table whose zero references are off:
     the fixture file knows none of it), one value per fixture joint, or empty for none.
+    ``base_tilt_rad``: the table's base not levelled, a rotation about ENU east and north
+    [rad] of the first joint's parent frame (the fixture file says it is ENU).
     """
 
     imu_rate_hz: float = 100.0
@@ -302,6 +309,7 @@ class WorldConfig:
     joint_latency_s: float = 0.0
     encoder_noise_rad: float = 1e-6
     encoder_zero_rad: tuple[float, ...] = ()
+    base_tilt_rad: tuple[float, float] = (0.0, 0.0)
     wrap_joints: bool = False
     joint_velocities: bool = True
     joint_order: str = 'fixture'
@@ -358,12 +366,14 @@ class WorldData:
 class _Instant:
     """Noise-free instantaneous outputs at profile times (profile + fixture + unit)."""
 
-    def __init__(self, fx: WorldFixture, profile: Any, mounting: Mounting, errors: UnitErrors):
+    def __init__(self, fx: WorldFixture, profile: Any, mounting: Mounting, errors: UnitErrors,
+                 base: Rotation | None = None):
         self.fx, self.profile, self.mounting, self.errors = fx, profile, mounting, errors
+        self.base = base
 
     def __call__(self, t_s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         q, qd, qdd = self.profile.evaluate(np.asarray(t_s, dtype=float).ravel())
-        m = body_motion(self.fx, self.mounting, q, qd, qdd)
+        m = body_motion(self.fx, self.mounting, q, qd, qdd, self.base)
         g, a, f = sensor_outputs(self.errors, m)
         return g, a, m.omega_ib_imu_rad_s, f
 
@@ -558,7 +568,9 @@ def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
         raise ValueError('the profile is shorter than two IMU intervals')
     k = np.arange(1, n + 1, dtype=np.int64)
     stamps = cfg.start_stamp_ns + k * dt_ns
-    inst = _Instant(fx, profile, mounting, unit.errors)
+    base = None if not any(cfg.base_tilt_rad) else Rotation.from_rotvec(
+        [cfg.base_tilt_rad[0], cfg.base_tilt_rad[1], 0.0])
+    inst = _Instant(fx, profile, mounting, unit.errors, base)
     out = np.empty((n, 6))
     nodes, weights = np.polynomial.legendre.leggauss(cfg.gl_nodes)
     bps = np.asarray(profile.breakpoints_s, dtype=float)
@@ -685,6 +697,7 @@ def _truth(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting, cfg: 
             'imu_samples': n, 'imu_samples_written': n_kept, 'joint_states': m,
             'joint_states_written': m_kept, 'encoder_noise_rad': float(cfg.encoder_noise_rad),
             'encoder_zero_rad': [float(v) for v in cfg.encoder_zero_rad],
+            'base_tilt_rad': [float(v) for v in cfg.base_tilt_rad],
             'wrap_joints': bool(cfg.wrap_joints), 'joint_velocities': bool(cfg.joint_velocities),
             'joint_order': cfg.joint_order, 'extra_joint': bool(cfg.extra_joint),
             'quantize': bool(cfg.quantize and cfg.noise), 'gl_nodes': int(cfg.gl_nodes),

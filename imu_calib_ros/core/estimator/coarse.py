@@ -146,6 +146,10 @@ class CoarseStart:
     gyro_walk_profile: tuple[tuple[float, float], ...] = ()
     #: the least share of gravity the windows put along any IMU direction (least_reach)
     accel_reach: float = 1.0
+    #: the table's base tilt from level, ``(t_e, t_n)`` [rad] (:func:`fit_joint_zeros`):
+    #: the fixture the filter uses is ``fixture.with_base_tilt(base_tilt_rad)``; its sigmas
+    base_tilt_rad: FloatArray = field(default_factory=lambda: np.zeros(2))
+    base_tilt_sigma_rad: FloatArray = field(default_factory=lambda: np.full(2, np.inf))
     #: the (IMU, joint) stamp clocks' revisions of the held stamps the start was measured on
     #: (:class:`~..stamp_clock.StampRevisions`, None where none): carried to the later passes
     #: with the start, whose clocks apply them (:attr:`~..stamp_clock.StampClock.hindsight`)
@@ -167,7 +171,8 @@ class CoarseStart:
         # a table's encoder zeros that gravity shows: the fits below them lean on them (a
         # start taken on 7 windows, the middle zero 4.6 +- 7.3 mrad and not applied, bent the
         # gyro and accelerometer fits; at 87 s the updates were gated and the filter diverged)
-        zs = np.asarray(self.joint_zero_sigma_rad, float)
+        zs = np.concatenate([np.asarray(self.joint_zero_sigma_rad, float),
+                             np.asarray(self.base_tilt_sigma_rad, float)])
         zero = float(np.max(zs[np.isfinite(zs)])) if np.any(np.isfinite(zs)) else 0.0
         return bool(max(gyro, zero) < gyro_limit and accel < accel_limit
                     and self.accel_reach >= MIN_ACCEL_REACH)
@@ -183,6 +188,8 @@ class CoarseStart:
             'gyro_bias_random_walk_rad_s2_rt_hz': self.gyro_bias_random_walk_rad_s2_rt_hz,
             'accel_bias_random_walk_m_s3_rt_hz': self.accel_bias_random_walk_m_s3_rt_hz,
             'static_windows': self.n_static_windows, 'duration_s': self.duration_s,
+            'base_tilt_rad': [float(v) for v in self.base_tilt_rad],
+            'base_tilt_sigma_rad': [float(v) for v in self.base_tilt_sigma_rad],
             'notes': list(self.notes)}
 
 
@@ -710,13 +717,24 @@ def _accels_pinned(fits: list[tuple[FloatArray, FloatArray]], accel_limit: float
 JOINT_ZERO_PRIOR_RAD = 0.01
 #: a zero is applied when its fit stands out by this many sigmas (else it stays 0)
 JOINT_ZERO_SIGNIFICANCE = 3.0
+#: prior sigma of a table base's tilt from level [rad] (a desk or a bench: up to a degree
+#: or two; a levelled rate table: arc seconds), in :func:`fit_joint_zeros`
+BASE_TILT_PRIOR_RAD = 0.05
 
 
 def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: float,
-                    rounds: int = 8) -> tuple[FloatArray, FloatArray]:
-    """A turntable's encoder zeros from the stationary windows' gravity: ``(zero (n,),
-    sigma (n,))`` [rad], 0 and inf where not fitted (gravity does not show them), 0 and
-    ``JOINT_ZERO_PRIOR_RAD`` on fewer than six windows (not known yet).
+                    rounds: int = 8
+                    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """A turntable's encoder zeros and its base's tilt from the stationary windows'
+    gravity: ``(zero (n,), sigma (n,), tilt (2,), sigma (2,))`` [rad], 0 and inf where not
+    fitted (gravity does not show them), 0 and the prior sigma on fewer than six windows
+    (not known yet). The tilt is the base's rotation vector ``(t_e, t_n)`` about ENU east
+    and north (:meth:`~imu_calib_ros.core.fixture.Fixture.with_base_tilt`): a zero error
+    of an axis fixed in ENU, fitted the same way (``u = e_e, e_n``). A table 0.1 deg off
+    level moves gravity by 1.7 mg along directions that turn with the outer axis; a MEMS
+    unit's encoder attitude aiding then fought its navigation (76 re-alignments, refused;
+    at 0.6 deg it diverged), where a navigation unit's filter, which uses the encoders only
+    for its windows, did not mind.
 
     The joint is at ``q + z`` when its encoder reads ``q``; a zero error of a joint before
     the last turns everything after it about the joint's axis, ``R(q + z_j e_j) = Rot(u_j z_j)
@@ -734,17 +752,19 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     """
     n = fixture.n_joints
     zero, sig = np.zeros(n), np.full(n, np.inf)
+    tilt, tilt_sig = np.zeros(2), np.full(2, np.inf)
     joints = list(em.nuisance_offset_joints(fixture))
-    if not getattr(fixture, 'concurrent', False) or not joints:
-        return zero, sig
+    if not getattr(fixture, 'concurrent', False):
+        return zero, sig, tilt, tilt_sig
     if len(wins) < 6:
         # too few windows to tell: the zeros are as unknown as their prior, so a start on
         # these windows is not determined (a tactical unit's start taken on three windows,
         # the table's zeros 4.4 and -2.2 mrad not fitted, bent the fits; every move through
         # the middle joint then gated the updates, 4 re-alignments, refused)
         sig[joints] = JOINT_ZERO_PRIOR_RAD
-        return zero, sig
-    m = len(joints)
+        return zero, sig, tilt, np.full(2, BASE_TILT_PRIOR_RAD)
+    m = len(joints) + 2  # the zeros, then the tilt's two angles
+    tilt_axes = np.broadcast_to(np.eye(3)[:2], (len(wins), 2, 3))
     g_enu = np.array([0.0, 0.0, fixture.site.gravity])
     qw = np.array([win.q_rad for win in wins])
     fm = np.array([win.accel_mean_m_s2 for win in wins])
@@ -755,13 +775,14 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     p0 = p.copy()
     a_sd = ACCEL_FIT_PRIOR_SD
     sd = np.concatenate([np.tile(a_sd[0:3], 3), np.full(3, a_sd[3]), np.full(3, a_sd[4]),
-                         np.full(m, JOINT_ZERO_PRIOR_RAD)])
+                         np.full(m - 2, JOINT_ZERO_PRIOR_RAD), np.full(2, BASE_TILT_PRIOR_RAD)])
     cov = np.diag(sd ** 2)
     for _ in range(rounds):
         A, aa, ba, z = p[:9].reshape(3, 3), p[9:12], p[12:15], p[15:]
         qz = qw.copy()
-        qz[:, joints] += z
-        R = fixture.R_enu_imu(qz)
+        qz[:, joints] += z[:-2]
+        fx = fixture.with_base_tilt(z[-2:])
+        R = fx.R_enu_imu(qz)
         g_nom = np.einsum('kji,j->ki', R, g_enu)
         g_a = g_nom @ A.T
         r = (fm - (g_a + aa * np.abs(g_a) + ba)) * rw[:, None]  # (K, 3)
@@ -770,7 +791,7 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
             J[:, i, 3 * i:3 * i + 3] = g_nom * (1.0 + aa[i] * np.sign(g_a[:, i]))[:, None]
             J[:, i, 9 + i] = np.abs(g_a[:, i])
             J[:, i, 12 + i] = 1.0
-        u = fixture.joint_axes_enu(qz)[:, joints]  # (K, m, 3)
+        u = np.concatenate([fx.joint_axes_enu(qz)[:, joints], tilt_axes], axis=1)  # (K, m, 3)
         d = np.einsum('kji,jl,kml->kim', R, skew(g_enu), u)  # d g_nom / d z
         J[:, :, 15:] = np.einsum('ab,kbm->kam', A, d) * (1.0 + aa * np.sign(g_a))[:, :, None]
         J *= rw[:, None, None]
@@ -782,11 +803,11 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
         if np.all(np.abs(step[15:]) < 1e-8):
             break
     z, s_z = p[15:], np.sqrt(np.diag(cov)[15:])
-    s_z = np.where(s_z > 0.9 * JOINT_ZERO_PRIOR_RAD, np.inf, s_z)  # gravity does not show it
+    s_z = np.where(s_z > 0.9 * sd[15:], np.inf, s_z)  # gravity does not show it
     keep = np.abs(z) > JOINT_ZERO_SIGNIFICANCE * s_z
-    zero[joints] = np.where(keep, z, 0.0)
-    sig[joints] = s_z
-    return zero, sig
+    zero[joints] = np.where(keep, z, 0.0)[:-2]
+    sig[joints] = s_z[:-2]
+    return zero, sig, np.where(keep, z, 0.0)[-2:], s_z[-2:]
 
 
 class _ZerosMisled(ValueError):
@@ -865,9 +886,18 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # --- a table's encoder zeros, from the windows' gravity: the joints from here on are at
     # q + zero (the fits below, and the filter's joint record)
     zero, zero_sig = np.zeros(fixture.n_joints), np.full(fixture.n_joints, np.inf)
+    tilt, tilt_sig = np.zeros(2), np.full(2, np.inf)
     if joint_zeros:
         with contextlib.suppress(ValueError, np.linalg.LinAlgError):  # then none, as without
-            zero, zero_sig = fit_joint_zeros(fixture, wins, noise_a, dt)
+            zero, zero_sig, tilt, tilt_sig = fit_joint_zeros(fixture, wins, noise_a, dt)
+    if np.any(tilt):  # the fits below on the base as it stands
+        if zeros_applied is not None:
+            zeros_applied.append(True)
+        fixture = fixture.with_base_tilt(tilt)
+        notes.append('the table\'s base tilted from level (windows\' gravity): '
+                     f'{np.linalg.norm(tilt) * 1e3:.3f} mrad, east {tilt[0] * 1e3:+.3f} +- '
+                     f'{tilt_sig[0] * 1e3:.3f}, north {tilt[1] * 1e3:+.3f} +- '
+                     f'{tilt_sig[1] * 1e3:.3f} mrad')
     if np.any(zero):
         if zeros_applied is not None:
             zeros_applied.append(True)
@@ -1037,8 +1067,9 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     theta_a = np.where(np.isfinite(sig_a), theta_a, 0.0)
     st = CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
                      noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
-                     tuple(notes), zero, zero_sig, accel_reach=reach)
-    why = implausible(st) if np.any(zero) else None
+                     tuple(notes), zero, zero_sig, accel_reach=reach, base_tilt_rad=tilt,
+                     base_tilt_sigma_rad=tilt_sig)
+    why = implausible(st) if np.any(zero) or np.any(tilt) else None
     if why is not None:
         raise _ZerosMisled(why)
     return st

@@ -130,7 +130,8 @@ class CalibrationEstimator:
 
     def __init__(self, fixture: Any, grade: Any = None, config: EstimatorConfig | None = None,
                  initial: Estimate | None = None, start: CoarseStart | None = None) -> None:
-        self.fixture = fixture
+        self.fixture = fixture  # on the base as it stands once the coarse start measured it
+        self._nominal_fixture = fixture  # as the fixture file says
         self._prior_mean_cache: tuple[tuple[Any, Any, Any], FloatArray] | None = None
         self.grade = grade  # a hint (prior floors, noise with noise_source 'grade'), or None
         self.config = config or EstimatorConfig()
@@ -857,6 +858,10 @@ class CalibrationEstimator:
         """Priors, encoder aiding and the state layout from the config, grade and start."""
         cfg = self.config
         st = self.start
+        # the table's base as it stands (not levelled: coarse.fit_joint_zeros), for every use
+        # of the fixture from here on (encoder attitude, windows, bridges, self-check)
+        self.fixture = self._nominal_fixture if st is None \
+            else self._nominal_fixture.with_base_tilt(st.base_tilt_rad)
         aiding = cfg.attitude_aiding or (
             st is not None and cfg.aiding_gyro_noise_rad_s_rt_hz > 0
             and st.gyro_noise_rad_s_rt_hz > cfg.aiding_gyro_noise_rad_s_rt_hz)
