@@ -139,6 +139,16 @@ FACTORS: dict[str, Factor] = {
     # a driver that publishes joint states only when a joint moved (silent at the dwells)
     'nav_onchange': Factor('nav', config=dict(joint_on_change_rad=1e-4)),
     'cmems_onchange': Factor('consumer_mems', config=dict(joint_on_change_rad=1e-3)),
+    # receipt delays over half a period with bursts of joint states lost (session 18)
+    'tac_jointjitter_drops': Factor('tactical', config=dict(
+        joint_rate_hz=14.4, joint_stamp_jitter_s=0.036, **DROPS)),
+    'nav_joints1000_jitter_drops': Factor('nav', config=dict(
+        joint_rate_hz=1000.0, joint_stamp_jitter_s=4.8e-3, **DROPS)),
+    # the table's base off level (session 18): a desk 1.15 deg, a bench 2 mrad, with all else
+    'cmems_tilt20': Factor('consumer_mems', config=dict(base_tilt_rad=(0.012, -0.016))),
+    'tac_tilt2': Factor('tactical', config=dict(base_tilt_rad=(-0.0012, 0.0016))),
+    'indmems_tilt_all_at_once': Factor('industrial_mems', 'point', dict(
+        joint_rate_hz=10.0, joint_latency_s=0.05, base_tilt_rad=(0.006, 0.008), **DROPS)),
 }
 PLAN_TAG = {0: 'srt3', 1: 'srt2', 2: 'kozlov3', 3: 'random3'}
 
@@ -150,7 +160,9 @@ DEFAULT = ('indmems_imu1000@srt3', 'indmems_imu50@srt3', 'tac_imu2000_point@srt3
            'tac_lat+50_point@kozlov3', 'cmems_mount10x@srt2', 'cmems_mount10y@srt3',
            'cmems_mount10z@kozlov3', 'cmems_p_j10_drops@kozlov3', 'cmems_j10_drops_im@srt2',
            'cmems_all_at_once@kozlov3', 'cmems_all_at_once_l-50@kozlov3',
-           'tac_all_at_once@kozlov3', 'nav_sqlite3@srt3', 'cmems_logjitter_slow@srt3')
+           'tac_all_at_once@kozlov3', 'nav_sqlite3@srt3', 'cmems_logjitter_slow@srt3',
+           'tac_jointjitter_drops@random3', 'nav_joints1000_jitter_drops@kozlov3',
+           'cmems_tilt20@kozlov3', 'tac_tilt2@srt3', 'indmems_tilt_all_at_once@srt3')
 
 
 def parse(name: str) -> tuple[Factor, int, int]:

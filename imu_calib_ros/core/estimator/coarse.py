@@ -189,7 +189,9 @@ class CoarseStart:
             'accel_bias_random_walk_m_s3_rt_hz': self.accel_bias_random_walk_m_s3_rt_hz,
             'static_windows': self.n_static_windows, 'duration_s': self.duration_s,
             'base_tilt_rad': [float(v) for v in self.base_tilt_rad],
-            'base_tilt_sigma_rad': [float(v) for v in self.base_tilt_sigma_rad],
+            # (None along an axis gravity does not show apart from a joint's zero)
+            'base_tilt_sigma_rad': [float(v) if math.isfinite(v) else None
+                                    for v in self.base_tilt_sigma_rad],
             'notes': list(self.notes)}
 
 
@@ -763,8 +765,20 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
         # the middle joint then gated the updates, 4 re-alignments, refused)
         sig[joints] = JOINT_ZERO_PRIOR_RAD
         return zero, sig, tilt, np.full(2, BASE_TILT_PRIOR_RAD)
-    m = len(joints) + 2  # the zeros, then the tilt's two angles
-    tilt_axes = np.broadcast_to(np.eye(3)[:2], (len(wins), 2, 3))
+    # the tilt's axes: east and north, but not about the first joint's axis when that is
+    # horizontal (a rotation about it is that joint's zero, or the mounting of a one-joint
+    # table): then the one horizontal axis across it (the zero and the tilt about one axis
+    # cancelled each other's significance on a table whose outer axis points north, and
+    # neither was applied: accel_scale 5.2 sigma off)
+    u1 = fixture.joint_axes_enu(np.zeros(n))[0]
+    h = np.array([u1[0], u1[1], 0.0])
+    if np.linalg.norm(h) < 0.1:
+        axes_t = np.eye(3)[:2]
+    else:
+        axes_t = np.cross([0.0, 0.0, 1.0], h / np.linalg.norm(h))[None, :]
+    n_t = len(axes_t)
+    m = len(joints) + n_t  # the zeros, then the tilt's angles
+    tilt_axes = np.broadcast_to(axes_t, (len(wins), n_t, 3))
     g_enu = np.array([0.0, 0.0, fixture.site.gravity])
     qw = np.array([win.q_rad for win in wins])
     fm = np.array([win.accel_mean_m_s2 for win in wins])
@@ -775,13 +789,14 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     p0 = p.copy()
     a_sd = ACCEL_FIT_PRIOR_SD
     sd = np.concatenate([np.tile(a_sd[0:3], 3), np.full(3, a_sd[3]), np.full(3, a_sd[4]),
-                         np.full(m - 2, JOINT_ZERO_PRIOR_RAD), np.full(2, BASE_TILT_PRIOR_RAD)])
+                         np.full(m - n_t, JOINT_ZERO_PRIOR_RAD),
+                         np.full(n_t, BASE_TILT_PRIOR_RAD)])
     cov = np.diag(sd ** 2)
     for _ in range(rounds):
         A, aa, ba, z = p[:9].reshape(3, 3), p[9:12], p[12:15], p[15:]
         qz = qw.copy()
-        qz[:, joints] += z[:-2]
-        fx = fixture.with_base_tilt(z[-2:])
+        qz[:, joints] += z[:len(joints)]
+        fx = fixture.with_base_tilt((z[len(joints):] @ axes_t)[:2])
         R = fx.R_enu_imu(qz)
         g_nom = np.einsum('kji,j->ki', R, g_enu)
         g_a = g_nom @ A.T
@@ -805,9 +820,14 @@ def fit_joint_zeros(fixture: Any, wins: list[StaticWindow], noise_a: float, dt: 
     z, s_z = p[15:], np.sqrt(np.diag(cov)[15:])
     s_z = np.where(s_z > 0.9 * sd[15:], np.inf, s_z)  # gravity does not show it
     keep = np.abs(z) > JOINT_ZERO_SIGNIFICANCE * s_z
-    zero[joints] = np.where(keep, z, 0.0)[:-2]
-    sig[joints] = s_z[:-2]
-    return zero, sig, np.where(keep, z, 0.0)[-2:], s_z[-2:]
+    k = len(joints)
+    zero[joints] = np.where(keep, z, 0.0)[:k]
+    sig[joints] = s_z[:k]
+    tilt = (np.where(keep, z, 0.0)[k:] @ axes_t)[:2]
+    # the sigma along east and north of the axes fitted; inf along one not fitted
+    tilt_sig = np.array([min((s_z[k + i] / abs(axes_t[i, c]) for i in range(n_t)
+                              if abs(axes_t[i, c]) > 0.5), default=np.inf) for c in range(2)])
+    return zero, sig, tilt, tilt_sig
 
 
 class _ZerosMisled(ValueError):
