@@ -253,3 +253,38 @@ def test_a_table_base_off_level_is_measured(unit: str, tilt_rad: float, seed: in
     cs = calib['imu_calibration']['estimator']['coarse_start']
     err = np.array(cs['base_tilt_rad']) - np.array(t)
     assert np.all(np.abs(err) < 4.0 * np.array(cs['base_tilt_sigma_rad'])), cs
+
+
+def test_a_base_tilt_the_windows_misjudge_is_refined_by_the_filter(tmp_path: Path,
+                                                                  capsys) -> None:
+    """A consumer MEMS unit on a lab's two-axis table whose outer axis points east, its base
+    15 mrad off level (a desk). On the lab bench's case of this kind
+    (``consumer_mems@equator_2axis_s0``) the windows' fit, whose model is the windows' alone,
+    put the tilt about north 0.13 mrad off, 6 of its sigmas, and with the base fixed there
+    the accelerometer bias ended 5.2 sigma off (NEES 137 over 45); with the tilt's residual
+    as a state it passes (2.72). Here: the residual is a state under encoder aiding (about
+    north only: about east is the outer joint's zero), the final tilt within 4 of its
+    sigmas, the calibration honest."""
+    from imu_calib_ros.testing import lab_motion
+    from imu_calib_ros.testing.world_sim import (Mounting, WorldConfig, draw_unit,
+                                                 simulate_to_files)
+    fx = lab_motion.write_fixture('equator_2axis', tmp_path)
+    rng = np.random.default_rng(31)
+    unit = draw_unit('consumer_mems', 1.0, rng)
+    tilt = (-13.3e-3, 6.3e-3)
+    profile = lab_motion.lab_schedule(lab_motion.LAB_FIXTURES['equator_2axis'], 31)
+    mounting = Mounting(np.radians([3.0, -4.0, 2.0]), np.array([0.01, -0.005, 0.0]))
+    bag, truth_path, _ = simulate_to_files(tmp_path / 'case', fx, profile, unit, mounting,
+                                           WorldConfig(base_tilt_rad=tilt), 31)
+    out = tmp_path / 'calib.yaml'
+    _replay(bag, fx, out, capsys)
+    calib = yaml.safe_load(out.read_text())
+    truth = yaml.safe_load(truth_path.read_text())
+    rows = [r for r in compare_calibration(calib, truth) if not r.fixed]
+    worst = max(rows, key=lambda r: abs(r.z))
+    assert abs(worst.z) < 4.0, worst
+    est = calib['imu_calibration']['estimator']
+    names = est['joint_offset_joints']
+    assert 'base tilt about north' in names  # (about east: the outer joint's zero)
+    i = names.index('base tilt about north')
+    assert abs(est['base_tilt_rad'][1] - tilt[1]) < 4.0 * est['joint_offset_sigma_rad'][i]

@@ -46,6 +46,7 @@ from scipy.spatial.transform import Rotation
 from .. import sensor_model as sm
 from ..errors import InputError
 from ..input_guard import GuardConfig, InputGuard
+from ..rotation import rotvec_to_matrix
 from ..stamp_clock import scatter_hint
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
@@ -95,6 +96,10 @@ ENCODER_NOISE_MIN = 50
 #: spread over the intervals (1.17 at the knots; numerical, scipy's not-a-knot spline)
 SPLINE_RATE_NOISE = 1.57
 RATE_WEIGHT_EVERY = 20  # blocks between two estimates of the encoders' weight
+#: the prior of the base tilt's residual states: this many of the coarse fit's sigmas, at
+#: least TILT_PRIOR_FLOOR_RAD (the coarse fit's model is the windows' alone)
+TILT_PRIOR_SIGMAS = 10.0
+TILT_PRIOR_FLOOR_RAD = 5e-4
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
 BRIDGE_JOINTS_AHEAD = 9
 
@@ -370,16 +375,29 @@ class CalibrationEstimator:
         """The current zero offset of every joint (n,) [rad] against its encoder reading: the
         coarse start's encoder zeros plus the states' estimates where they are states."""
         out = np.array(self._joint_zero, float)
-        if self.layout.n_joint_offsets:
-            out[list(self._offset_joints)] += self._joint_offsets
+        if self._offset_joints and self.layout.n_joint_offsets:
+            out[list(self._offset_joints)] += self._joint_offsets[:len(self._offset_joints)]
         return out
+
+    def base_tilt_rad(self) -> FloatArray:
+        """The table base's tilt from level ``(t_e, t_n)`` [rad]: the coarse start's plus
+        the tilt states' estimate where they are states."""
+        t = np.zeros(2) if self.start is None else np.array(self.start.base_tilt_rad, float)
+        k = len(self._offset_joints)
+        if len(self._tilt_axes) and self.layout.n_joint_offsets:
+            t = t + (self._joint_offsets[k:] @ self._tilt_axes)[:2]
+        return t
 
     def _offset_names(self) -> dict[str, Any]:
         """The joints of the ``joint_offset_rad`` extra (a general chain), by name."""
-        if not self._offset_joints:
-            return {}
+        tilt = {} if self.start is None or not np.any(self.base_tilt_rad()) else {
+            'base_tilt_rad': [float(v) for v in self.base_tilt_rad()]}
+        if not self._offset_joints and not len(self._tilt_axes):
+            return tilt
         return {'joint_offset_joints': [self.fixture.joint_names[j]
-                                        for j in self._offset_joints]}
+                                        for j in self._offset_joints]
+                + [f'base tilt about {"east" if a[0] else "north"}' for a in self._tilt_axes],
+                **tilt}
 
     def _settings_changed(self) -> dict[str, Any]:
         """The estimator settings that differ from the shipped defaults (the report's header:
@@ -810,11 +828,19 @@ class CalibrationEstimator:
     def _with_offsets(self, q: FloatArray) -> FloatArray:
         """Encoder angles ``q`` (..., n) plus the estimated joint zero offsets: where the
         chain's kinematics are evaluated (the joint is at ``q + o``, :mod:`.measurements`)."""
-        if not self.layout.n_joint_offsets:
+        if not self._offset_joints or not self.layout.n_joint_offsets:
             return q
         q = np.array(q, dtype=float)
-        q[..., list(self._offset_joints)] += self._joint_offsets
+        q[..., list(self._offset_joints)] += self._joint_offsets[:len(self._offset_joints)]
         return q
+
+    def _tilted(self, R_enu_imu: FloatArray) -> FloatArray:
+        """``R_enu_imu`` (..., 3, 3) of the fixture on its base turned further by the tilt
+        states' estimate (none: unchanged)."""
+        k = len(self._offset_joints)
+        if not len(self._tilt_axes) or not np.any(self._joint_offsets[k:]):
+            return R_enu_imu
+        return rotvec_to_matrix(self._joint_offsets[k:] @ self._tilt_axes) @ R_enu_imu
 
     def _encoder_attitude(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray
                           ) -> tuple[FloatArray | None, FloatArray | None, NDArray[np.bool_]]:
@@ -829,9 +855,14 @@ class CalibrationEstimator:
             return None, None, have
         lay = self.layout
         q_end = self._with_offsets(q_end)
-        axes = (self.fixture.angular_axes_enu(q_end)[:, list(self._offset_joints)]
-                if lay.n_joint_offsets else None)
-        z, H = to_filter_units(*encoder_attitude(R_enu_imu, self.fixture.R_enu_imu(q_end),
+        axes = None
+        if lay.n_joint_offsets:
+            axes = np.concatenate([
+                self.fixture.angular_axes_enu(q_end)[:, list(self._offset_joints)],
+                np.broadcast_to(self._tilt_axes, (len(q_end),) + self._tilt_axes.shape)],
+                axis=1)
+        z, H = to_filter_units(*encoder_attitude(R_enu_imu,
+                                                 self._tilted(self.fixture.R_enu_imu(q_end)),
                                                  self._mount, lay, axes), lay.scale)
         return z, H, have
 
@@ -875,10 +906,23 @@ class CalibrationEstimator:
         self._offset_joints = (em.joint_offset_joints(self.fixture, self.attitude_aiding)
                                if cfg.estimate_joint_offset
                                and cfg.chain_joint_offset_sigma_rad > 0 else ())
-        self._prior[em.CHAIN_GROUP] = np.full(len(self._offset_joints),
-                                              cfg.chain_joint_offset_sigma_rad)
+        # the base tilt's residual about east and north after the coarse start, as states
+        # after the joint offsets (a turntable with encoder aiding, the one measurement a
+        # tilt enters): a left rotation about a fixed ENU axis, as a joint offset is one about
+        # its axis. The coarse fit's model is the windows' (no size effect, no G): a consumer
+        # MEMS unit's tilt came out 0.13 mrad (6 of its sigmas) off, accel_bias 5.2 sigma off
+        tilt_sd = (np.full(2, np.inf) if st is None
+                   else np.asarray(st.base_tilt_sigma_rad, float))
+        tilt_on = [c for c in range(2) if math.isfinite(tilt_sd[c])] \
+            if self.attitude_aiding and self.fixture.concurrent \
+            and cfg.estimate_joint_offset else []
+        self._tilt_axes = np.eye(3)[tilt_on]
+        self._prior[em.CHAIN_GROUP] = np.concatenate([
+            np.full(len(self._offset_joints), cfg.chain_joint_offset_sigma_rad),
+            np.maximum(TILT_PRIOR_SIGMAS * tilt_sd[tilt_on], TILT_PRIOR_FLOOR_RAD)])
         self.layout = em.StateLayout.build(
-            tuple(g for g in groups if g not in self.dropped_groups), len(self._offset_joints))
+            tuple(g for g in groups if g not in self.dropped_groups),
+            len(self._offset_joints) + len(tilt_on))
         self._prior_shift = None if self._initial is None else prior_shift(
             self._initial, tuple(self.layout.labels()[6:]), self._prior_mean())
 

@@ -34,9 +34,10 @@ def calibration_truth(est: Any, sim: Any) -> NDArray[np.float64]:
         x[lay.slices['lever_arm']] = rho
     if 'mounting' in lay.slices:
         x[lay.slices['mounting']] = Rotation.from_matrix(R_m).as_rotvec()
-    if lay.n_joint_offsets:
-        x[lay.slices[em.CHAIN_GROUP]] = joint_offsets_truth(fx, tf)[
-            list(est.offset_joints)]
+    if lay.n_joint_offsets:  # (a base tilt's residual states after them: a level base)
+        off = joint_offsets_truth(fx, tf)[list(est.offset_joints)]
+        x[lay.slices[em.CHAIN_GROUP]] = np.concatenate(
+            [off, np.zeros(lay.n_joint_offsets - len(off))])
     return x[6:]
 
 
