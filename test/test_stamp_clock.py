@@ -304,3 +304,30 @@ def test_a_later_pass_gives_out_the_stamps_the_first_revised() -> None:
     err = (out2 - true).astype(float)
     assert np.abs(err - np.median(err)).max() < 0.01 * 0.036e9
     assert np.all(np.diff(out2) > 0)
+
+
+def test_timing_sigma_stays_within_the_delays_after_a_new_time_base() -> None:
+    """After a backward time jump (a looping bag, use_sim_time) the line rests on a few
+    stamps; the bound (j / W)(3 + 4 R / W) on them ran to 54 s on 14 Hz joint states, which
+    the encoder attitude's noise took: never more than the delays' spread."""
+    _, stamps = _stream(14.4, 0.036, 2000, seed=23)
+    c = StampClock()
+    _run(c, stamps, 7)
+    assert c.smoothing
+    c.reset()
+    c(stamps[:1] - 10**12)
+    spread = c._delay_hi if c.sequential else 2.5 * c.jitter_ns
+    assert 0.0 < c.timing_sigma_ns <= spread
+
+
+def test_bursts_are_not_folded() -> None:
+    """A FIFO read in bursts (stamps microseconds apart within a burst): the median interval
+    is not the period, so phase counting is not tried (a grid over the span in such units
+    took seconds per call)."""
+    import time
+
+    from imu_calib_ros.core.stamp_clock import fold_counts
+    t = np.concatenate([k * 8e6 + np.arange(8) * 5e3 for k in range(128)])
+    t0 = time.perf_counter()
+    assert fold_counts(t, float(np.median(np.diff(t)))) is None
+    assert time.perf_counter() - t0 < 0.5

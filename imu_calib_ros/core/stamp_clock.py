@@ -174,6 +174,10 @@ def fold_counts(s: FloatArray, p0: float) -> tuple[FloatArray, float, float] | N
     span = float(x[-1])
     if len(x) < 16 or not span > 0.0 or not p0 > 0.0:
         return None
+    if span / p0 > 4.0 * len(x):
+        # the median interval is not the period: a FIFO read in bursts (microseconds apart)
+        # has no arc to find, and a grid over the span in its units took seconds per call
+        return None
     f0, df = 1.0 / p0, 0.05 / span
     grid = np.arange(f0 * (1.0 - FOLD_RANGE), f0 * (1.0 + FOLD_RANGE), df)
 
@@ -324,7 +328,9 @@ class StampClock:
         if self.smoothing:
             j = self._delay_hi if self.sequential else 2.5 * self.jitter_ns  # (j / sqrt 6)
             w = max(len(self._hist_k), 1)
-            return j / w * (3.0 + 4.0 * self.refit / w)
+            # (never more than the delays' spread: just after a new time base the line rests
+            # on a few stamps, and the bound above ran to seconds)
+            return min(j / w * (3.0 + 4.0 * self.refit / w), j)
         if self.scattered:
             return self.jitter_ns / np.sqrt(2.0)  # (the intervals scatter as two delays)
         return 0.0

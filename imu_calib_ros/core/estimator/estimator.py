@@ -54,7 +54,7 @@ from . import error_model as em
 from .alignment import align, initial_covariance, level_coupling, still_run
 from .bootstrap import Bootstrap
 from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
-from .coarse import CoarseStart, implausible
+from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
 from .history import EstimateHistory
@@ -97,7 +97,8 @@ ENCODER_NOISE_MIN = 50
 SPLINE_RATE_NOISE = 1.57
 RATE_WEIGHT_EVERY = 20  # blocks between two estimates of the encoders' weight
 #: the prior of the base tilt's residual states: this many of the coarse fit's sigmas, at
-#: least TILT_PRIOR_FLOOR_RAD (the coarse fit's model is the windows' alone)
+#: least TILT_PRIOR_FLOOR_RAD (the coarse fit's model is the windows' alone), at most the
+#: coarse fit's own prior (coarse.BASE_TILT_PRIOR_RAD: a small-angle state)
 TILT_PRIOR_SIGMAS = 10.0
 TILT_PRIOR_FLOOR_RAD = 5e-4
 #: joint states a motion bridge waits for beyond its end (JointBuffer.spline_error_at reads 8)
@@ -919,7 +920,8 @@ class CalibrationEstimator:
         self._tilt_axes = np.eye(3)[tilt_on]
         self._prior[em.CHAIN_GROUP] = np.concatenate([
             np.full(len(self._offset_joints), cfg.chain_joint_offset_sigma_rad),
-            np.maximum(TILT_PRIOR_SIGMAS * tilt_sd[tilt_on], TILT_PRIOR_FLOOR_RAD)])
+            np.clip(TILT_PRIOR_SIGMAS * tilt_sd[tilt_on], TILT_PRIOR_FLOOR_RAD,
+                    BASE_TILT_PRIOR_RAD)])
         self.layout = em.StateLayout.build(
             tuple(g for g in groups if g not in self.dropped_groups),
             len(self._offset_joints) + len(tilt_on))
