@@ -465,10 +465,10 @@ class StampClock:
         With none, the clock learns again, :data:`SEQ_TRIES` times in all before the stream
         is taken as not periodic."""
         self._tries += 1
-        folded = fold_counts((t - t[0]).astype(float), float(np.median(np.diff(t))))
+        s = (t - t[0]).astype(float)
+        folded = fold_counts(s, float(np.median(np.diff(t))))
         if folded is not None:
             k, P, spread = folded
-            s = (t - t[0]).astype(float)
             r = s - np.polyval(np.polyfit(k, s, 1), k)
             if _fresh(r):
                 # a count a drop away from the arc's end: half way across the empty arc

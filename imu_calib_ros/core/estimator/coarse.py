@@ -910,17 +910,15 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     if joint_zeros:
         with contextlib.suppress(ValueError, np.linalg.LinAlgError):  # then none, as without
             zero, zero_sig, tilt, tilt_sig = fit_joint_zeros(fixture, wins, noise_a, dt)
+    if (np.any(tilt) or np.any(zero)) and zeros_applied is not None:
+        zeros_applied.append(True)
     if np.any(tilt):  # the fits below on the base as it stands
-        if zeros_applied is not None:
-            zeros_applied.append(True)
         fixture = fixture.with_base_tilt(tilt)
         notes.append('the table\'s base tilted from level (windows\' gravity): '
                      f'{np.linalg.norm(tilt) * 1e3:.3f} mrad, east {tilt[0] * 1e3:+.3f} +- '
                      f'{tilt_sig[0] * 1e3:.3f}, north {tilt[1] * 1e3:+.3f} +- '
                      f'{tilt_sig[1] * 1e3:.3f} mrad')
     if np.any(zero):
-        if zeros_applied is not None:
-            zeros_applied.append(True)
         qj = qj + zero
         spline = CubicSpline(tj, qj, axis=0)
         wins = [dataclasses.replace(win, q_rad=win.q_rad + zero) for win in wins]

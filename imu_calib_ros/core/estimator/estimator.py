@@ -380,19 +380,24 @@ class CalibrationEstimator:
             out[list(self._offset_joints)] += self._joint_offsets[:len(self._offset_joints)]
         return out
 
+    def _tilt_rotvec(self) -> FloatArray:
+        """The tilt states' estimate as an ENU rotation vector (3,) (the ``joint_offset``
+        states after the joints' own): zero without them."""
+        if not len(self._tilt_axes) or not self.layout.n_joint_offsets:
+            return np.zeros(3)
+        return self._joint_offsets[len(self._offset_joints):] @ self._tilt_axes
+
     def base_tilt_rad(self) -> FloatArray:
         """The table base's tilt from level ``(t_e, t_n)`` [rad]: the coarse start's plus
         the tilt states' estimate where they are states."""
         t = np.zeros(2) if self.start is None else np.array(self.start.base_tilt_rad, float)
-        k = len(self._offset_joints)
-        if len(self._tilt_axes) and self.layout.n_joint_offsets:
-            t = t + (self._joint_offsets[k:] @ self._tilt_axes)[:2]
-        return t
+        return t + self._tilt_rotvec()[:2]
 
     def _offset_names(self) -> dict[str, Any]:
         """The joints of the ``joint_offset_rad`` extra (a general chain), by name."""
-        tilt = {} if self.start is None or not np.any(self.base_tilt_rad()) else {
-            'base_tilt_rad': [float(v) for v in self.base_tilt_rad()]}
+        t = self.base_tilt_rad()
+        tilt = {} if self.start is None or not np.any(t) else {
+            'base_tilt_rad': [float(v) for v in t]}
         if not self._offset_joints and not len(self._tilt_axes):
             return tilt
         return {'joint_offset_joints': [self.fixture.joint_names[j]
@@ -838,10 +843,8 @@ class CalibrationEstimator:
     def _tilted(self, R_enu_imu: FloatArray) -> FloatArray:
         """``R_enu_imu`` (..., 3, 3) of the fixture on its base turned further by the tilt
         states' estimate (none: unchanged)."""
-        k = len(self._offset_joints)
-        if not len(self._tilt_axes) or not np.any(self._joint_offsets[k:]):
-            return R_enu_imu
-        return rotvec_to_matrix(self._joint_offsets[k:] @ self._tilt_axes) @ R_enu_imu
+        v = self._tilt_rotvec()
+        return rotvec_to_matrix(v) @ R_enu_imu if np.any(v) else R_enu_imu
 
     def _encoder_attitude(self, t_ns: NDArray[np.int64], R_enu_imu: FloatArray
                           ) -> tuple[FloatArray | None, FloatArray | None, NDArray[np.bool_]]:
