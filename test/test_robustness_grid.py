@@ -114,6 +114,15 @@ CASES = [
      'cannot count them and passes them as given; the coarse start\'s 10 ms groups left 3 % '
      'of the rates in timing noise: "the gyro rates do not follow the fixture\'s joint '
      'rotations", refused; groups now as long as the stamps\' scatter needs'),
+    ('nav-1khz-joint-receipt-imu-drops',
+     dict(unit='nav', size=1.0, mount_deg=3.0, joint_rate_hz=1000.0, imu_rate_hz=200.0,
+          joint_stamp_jitter_s=4.8e-3, drop_fraction_joint=0.05, drop_fraction_imu=0.02,
+          seed=17),
+     'the same joint states with IMU samples lost in turns: the joint record held their stamps '
+     'as given, several 1 ns apart with different angles, and the cubic spline through them '
+     'swung by milliradians between two states; the motion bridges over the IMU gaps tilted '
+     'the navigation by up to 0.14 rad (gated updates, re-alignments, a diverged run); the '
+     'joint record now averages such states in groups'),
 ]
 
 

@@ -586,6 +586,17 @@ JOINT_RATE_TIMING_SHARE = 0.005
 JOINT_BIN_MAX_S = 0.1
 
 
+def timing_group_size(dt_s: float, timing_sigma_s: float) -> int:
+    """States per group (:func:`thin_joint_states`) for joint stamps that scatter by
+    ``timing_sigma_s`` about their instants at a period ``dt_s``: the least ``k`` whose group
+    rate's timing error ``sqrt(2) sigma / (k^1.5 dt)`` is :data:`JOINT_RATE_TIMING_SHARE` of
+    itself, at most :data:`JOINT_BIN_MAX_S` of states; 1 for exact stamps."""
+    if not timing_sigma_s > 0.0 or not dt_s > 0.0:
+        return 1
+    k_t = (math.sqrt(2.0) * timing_sigma_s / (JOINT_RATE_TIMING_SHARE * dt_s)) ** (2 / 3)
+    return max(1, min(int(math.ceil(k_t)), int(JOINT_BIN_MAX_S / dt_s)))
+
+
 def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOINT_BIN_S,
                       timing_sigma_s: float = 0.0) -> tuple[NDArray[np.int64], FloatArray]:
     """Joint states faster than ``1 / bin_s`` averaged in groups of ``k`` consecutive
@@ -609,9 +620,7 @@ def thin_joint_states(t_ns: NDArray[np.int64], q: FloatArray, bin_s: float = JOI
         return t_ns, q
     dt = float(np.median(np.diff(t_ns))) * 1e-9
     k = int(round(bin_s / dt)) if dt > 0 else 1
-    if timing_sigma_s > 0.0 and dt > 0:
-        k_t = (math.sqrt(2.0) * timing_sigma_s / (JOINT_RATE_TIMING_SHARE * dt)) ** (2 / 3)
-        k = max(k, min(int(math.ceil(k_t)), int(JOINT_BIN_MAX_S / dt)))
+    k = max(k, timing_group_size(dt, timing_sigma_s))
     if k < 2:
         return t_ns, q
     m = len(t_ns) // k

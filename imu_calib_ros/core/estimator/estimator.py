@@ -54,7 +54,7 @@ from . import error_model as em
 from .alignment import align, initial_covariance, level_coupling, still_run
 from .bootstrap import Bootstrap
 from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
-from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible
+from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible, timing_group_size
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
 from .history import EstimateHistory
@@ -257,6 +257,7 @@ class CalibrationEstimator:
         if q is not None and self._boot is not None:
             self._boot.hold_joints(np.array([t], np.int64), q[None, :])
         elif q is not None:  # joint stamps minus the measured latency: the instants they describe
+            self._group_scattered_joints()
             self._joints.append(*self._recorded(t, q))
         self._sync_input_counters()
 
@@ -268,6 +269,7 @@ class CalibrationEstimator:
         if len(t) and self._boot is not None:
             self._boot.hold_joints(t, q)
         elif len(t):
+            self._group_scattered_joints()
             self._joints.extend(*self._recorded(t, q))
         self._sync_input_counters()
 
@@ -276,6 +278,7 @@ class CalibrationEstimator:
         check the filter's health over that last stretch too."""
         if self._boot is not None:
             self._finish_bootstrap(final=True)
+        self._joints.flush_group()
         self._process(final=True, end=True)
         self._check_divergence()
         self._record_history(force=True)
@@ -360,6 +363,16 @@ class CalibrationEstimator:
                                           [float(f'{v:.4g}') for v in row] for row in
                                           parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
+
+    def _group_scattered_joints(self) -> None:
+        """Joint stamps the joint clock gave up on (taken on receipt, scattered by their
+        delays): the joint record averages them in groups from now on
+        (:meth:`.buffers.JointBuffer.set_group`, as many as the coarse start's
+        :func:`.coarse.timing_group_size`)."""
+        jc = self._guard.joint_clock
+        if jc.scattered and self._joints.group == 1 and jc.period_ns > 0.0:
+            self._joints.set_group(timing_group_size(jc.period_ns * 1e-9,
+                                                     jc.timing_sigma_ns * 1e-9))
 
     def _recorded(self, t_ns: Any, q: FloatArray) -> tuple[Any, FloatArray]:
         """Joint stamps and angles as the joint record holds them: the stamps minus the
@@ -713,8 +726,9 @@ class CalibrationEstimator:
         failed its self-check)."""
         st = self.start
         sd = 0.0 if st is None else float(st.joint_latency_sigma_s)
-        sd = math.hypot(sd if math.isfinite(sd) else 0.0,
-                        1e-9 * self._guard.joint_clock.timing_sigma_ns)
+        sd = math.hypot(sd if math.isfinite(sd) else 0.0,  # (a group's mean stamp: sqrt k less)
+                        1e-9 * self._guard.joint_clock.timing_sigma_ns
+                        / math.sqrt(self._joints.group))
         if not sd > 0.0:
             return None
         w_enu = np.einsum('bij,bj->bi', blk.R_enu_imu_end, blk.omega_ib_end_rad_s)
@@ -984,6 +998,7 @@ class CalibrationEstimator:
             if item[0] == 'imu':
                 self._accept_imu(*item[1:])
             elif len(item[1]):
+                self._group_scattered_joints()
                 self._joints.extend(*self._recorded(item[1], item[2]))
         return True
 
