@@ -173,6 +173,6 @@ def test_grouping_is_the_same_for_any_batches() -> None:
     assert len(whole) == len(t_ns) // 7
     whole.flush_group()
     assert len(whole) == len(t_ns) // 7 + 1
-    assert whole.t_ns[-1] == int(np.round(np.mean(t_ns[len(t_ns) // 7 * 7:] - t_ns[-(len(t_ns) % 7)])
-                                           )) + int(t_ns[-(len(t_ns) % 7)])
+    rest = t_ns[len(t_ns) // 7 * 7:]
+    assert whole.t_ns[-1] == int(np.round(np.mean(rest - rest[0]))) + int(rest[0])
     assert whole.counters['joint_samples'] == len(t_ns)
