@@ -366,3 +366,36 @@ def test_drops_hidden_in_every_window_pass_as_given(seed: int) -> None:
     assert c.timing_sigma_ns == pytest.approx(float(np.std(err)), rel=0.1)
     # the mean interval of the learnt stamps, their own drops in it (not the bursts' median)
     assert c.period_ns == pytest.approx(P / keep.mean(), rel=0.05)
+
+
+def test_a_lone_window_under_a_period_of_delays_still_counts() -> None:
+    """15.2 Hz joint states stamped U(0, 60 ms) late (0.91 of a period: too wide to fold),
+    3.6 % dropped in bursts: a learning often holds one window that passes (the others count
+    a burst of drops as delays). Under a period of delays every drop shows above them, so a
+    lone window is not asked for another's agreement (asked, 8 of 10 seeds passed as given,
+    60 ms of scatter, and the grid's `nav-s0.2-large-slow_joints-random@three_axis-0` was
+    refused: "the gyro rates do not follow the fixture's joint rotations"). A drop that
+    hides until the envelope shows its step miscounts a few stamps, as for wider delays."""
+    counted = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        n, P = 9000, int(round(1e9 / 15.2))
+        true = START + np.arange(n, dtype=np.int64) * P
+        late = true + np.round(rng.uniform(0.0, 0.060, n) * 1e9).astype(np.int64)
+        keep = np.ones(n, bool)
+        i = 0
+        while i < n:  # bursts of 5 on average, 3.6 % in all
+            if rng.random() < 0.036 / 5.0:
+                length = int(rng.geometric(0.2))
+                keep[i:i + length] = False
+                i += length
+            i += 1
+        stamps = late[keep]
+        stamps = np.maximum.accumulate(stamps - np.arange(len(stamps))) + np.arange(len(stamps))
+        c = StampClock()
+        out = _run(c, stamps, 7)
+        if c.sequential and c.smoothing:
+            counted += 1
+            mis = _miscounted(out, true[keep], P)[LEARN_SAMPLES:]
+            assert mis.sum() <= 4.0 * 0.036 * len(mis) + 1
+    assert counted >= 6

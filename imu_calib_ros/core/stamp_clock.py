@@ -502,7 +502,7 @@ class StampClock:
                 self.sequential = True
                 self._start(t, k, np.zeros(0, bool))
                 return True
-        passing: list[tuple[float, int, FloatArray, float]] = []
+        passing: list[tuple[float, int, FloatArray, float, float]] = []
         for w0 in range(0, len(t) - SEQ_LEARN + 1, SEQ_LEARN):
             tw = t[w0:w0 + SEQ_LEARN]
             s = (tw - tw[0]).astype(float)
@@ -512,21 +512,21 @@ class StampClock:
             k, r, P, hi = got
             mins = [float(x.min()) for x in np.array_split(r, 4)]
             if r.max() <= SEQ_MAX_SPREAD * P and max(mins) <= 0.5 * P and _fresh(r):
-                passing.append((P, w0, k, hi))
+                passing.append((P, w0, k, hi, float(r.max())))
         if not passing:
             if self._tries < SEQ_TRIES:
                 self.decided, self._learnt = False, 0  # learn again from the next stamp
             return self._tries < SEQ_TRIES
         before = dict(self.__dict__)
         periods = np.array([c[0] for c in passing])
-        for P, w0, k, hi in sorted(passing, key=lambda c: c[0]):
+        for P, w0, k, hi, spread in sorted(passing, key=lambda c: c[0]):
             # a window with a drop it could not see counts its span one period short: its
-            # period is P / SEQ_LEARN long. Another window of the learnt stamps must agree
-            # within half of that (where the learnt stamps hold more than one): with drops
-            # hidden in every window (5 % of 1 kHz joint states 0-4.8 ms late) the windows
-            # disagree by thousands of ppm, and a line on any of them put stamps 6 ms off
-            if len(t) >= 2 * SEQ_LEARN and np.sum(
-                    np.abs(periods - P) <= 0.5 * P / SEQ_LEARN) < 2:
+            # period is P / SEQ_LEARN long. Where its delays spread over more than a period
+            # (a drop can hide in them), another window must agree within half of that: with
+            # drops hidden in every window (5 % of 1 kHz joint states 0-4.8 ms late) the
+            # windows disagree by thousands of ppm, and a line on any of them put stamps 6
+            # ms off. Under a period every drop shows above the delays (the hold below)
+            if spread > P and np.sum(np.abs(periods - P) <= 0.5 * P / SEQ_LEARN) < 2:
                 continue
             if self._window_holds(t, w0, k, hi):
                 return True
