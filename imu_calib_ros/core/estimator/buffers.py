@@ -97,6 +97,7 @@ class JointBuffer:
         self._pend_q: FloatArray | None = None
         self._held: tuple[IntArray, FloatArray] | None = None
         self._before: tuple[IntArray, FloatArray] | None = None
+        self._hole_ns = 0.0
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -109,19 +110,23 @@ class JointBuffer:
         self._pend_t, self._pend_q = np.zeros(0, np.int64), None
         self._held = self._before = None
 
-    def set_group(self, k: int) -> None:
+    def set_group(self, k: int, period_ns: float = 0.0) -> None:
         """From the next state on, store the mean of each ``k`` consecutive states (stamps
         and unwrapped angles alike): joint stamps taken on receipt that the joint clock
         could not put back scatter by milliseconds, 1 ns apart where a host read several
         messages at once, and the cubic spline through them ran to 0.6 rad/s between two
         states of a table at rest (a motion bridge there tilted a navigation unit by 4.6
         mrad). A group's mean stamp scatters ``sqrt(k)`` times less
-        (:func:`.coarse.timing_group_size`). The mean of a group of ``T`` seconds is the
-        angle at its mean instant plus ``qdd T^2 / 24``, one sign through an acceleration
-        (130 urad at 2 rad/s^2 over 40 ms, against a MEMS unit's 100 urad of encoder
-        attitude noise): each group is stored once the next is complete, less that term
-        with ``qdd`` from its neighbours' means (:meth:`_box_corrected`)."""
+        (:func:`.coarse.timing_group_size`). The mean of ``k`` states ``dt`` apart is the
+        angle at their mean instant plus ``qdd dt^2 (k^2 - 1) / 24``, one sign through an
+        acceleration (130 urad at 2 rad/s^2 over 40 ms, against a MEMS unit's 100 urad of
+        encoder attitude noise): each group is stored once the next is complete, less that
+        term with ``qdd`` from its neighbours' means (:meth:`_box_corrected`). A group ends
+        early before an interval longer than ``max(k / 2, JOINT_HOLE_PERIODS)`` periods
+        ``period_ns`` (a hole in the record: a group across it put its mean inside the hole
+        and hid it from :meth:`positions_at`)."""
         self.group = max(1, int(k))
+        self._hole_ns = max(0.5 * self.group, JOINT_HOLE_PERIODS) * float(period_ns)
 
     def flush_group(self) -> None:
         """Store the groups not yet stored (the end of the data): the last complete one
@@ -131,7 +136,7 @@ class JointBuffer:
             out_t.append(self._held[0])
             out_q.append(self._held[1])
         if len(self._pend_t) and self._pend_q is not None:
-            tb, qb = self._means(self._pend_t, self._pend_q, len(self._pend_t))
+            tb, qb = self._means(self._pend_t, self._pend_q, np.array([0]))
             out_t.append(tb)
             out_q.append(qb)
         self._pend_t, self._pend_q = np.zeros(0, np.int64), None
@@ -142,16 +147,30 @@ class JointBuffer:
 
     def _grouped(self, t: IntArray, q: FloatArray) -> tuple[IntArray, FloatArray]:
         """The groups that can be stored now: the complete groups' means of the incomplete
-        group and ``t, q`` (the rest kept), each once the next is there
-        (:meth:`_box_corrected`)."""
+        group and ``t, q`` (the rest kept; a group also ends before a hole), each once the
+        next is there (:meth:`_box_corrected`)."""
         if self.group <= 1 and not len(self._pend_t) and self._held is None:
             return t, q
         if len(self._pend_t) and self._pend_q is not None:
             t, q = np.concatenate([self._pend_t, t]), np.vstack([self._pend_q, q])
         k = max(self.group, 1)
-        m = len(t) // k * k
-        self._pend_t, self._pend_q = t[m:].copy(), q[m:].copy()
-        tb, qb = self._means(t[:m], q[:m], k)
+        holes = (np.flatnonzero(np.diff(t) > self._hole_ns) + 1).tolist() \
+            if self._hole_ns > 0.0 else []
+        starts: list[int] = []
+        seg0 = done = 0
+        for seg1 in holes + [len(t)]:
+            rest = seg0 + (seg1 - seg0) // k * k
+            starts.extend(range(seg0, rest, k))
+            if seg1 < len(t):  # a hole follows: the states before it are a group
+                if rest < seg1:
+                    starts.append(rest)
+                done = seg1
+            else:
+                done = rest  # (an incomplete last group stays pending)
+            seg0 = seg1
+        self._pend_t, self._pend_q = t[done:].copy(), q[done:].copy()
+        idx = np.array(starts, dtype=np.intp)
+        tb, qb = self._means(t[:done], q[:done], idx)
         if self._held is not None:
             tb = np.concatenate([self._held[0], tb])
             qb = np.vstack([self._held[1], qb])
@@ -161,17 +180,18 @@ class JointBuffer:
         self._held = (tb[-1:].copy(), qb[-1:].copy())
         if len(tb) >= 2:
             self._before = (tb[-2:-1].copy(), qb[-2:-1].copy())
-        return self._box_corrected(tb, qb, before)
+        return self._box_corrected(tb, qb, before, k)
 
     @staticmethod
     def _box_corrected(tb: IntArray, qb: FloatArray,
-                       before: tuple[IntArray, FloatArray] | None
+                       before: tuple[IntArray, FloatArray] | None, k: int
                        ) -> tuple[IntArray, FloatArray]:
-        """Group means ``tb, qb`` but the last, each less ``qdd T^2 / 24`` (the mean over a
-        group of ``T`` seconds of a motion accelerating at ``qdd``): ``qdd`` the second
-        divided difference of its own and its neighbours' means (``before``: the mean
-        before the first, None at the start of the record: uncorrected), ``T`` the
-        neighbours' spacing. Not across a hole (spacings more than 1.5x apart)."""
+        """Group means ``tb, qb`` but the last, each less ``qdd dt^2 (k^2 - 1) / 24`` (the
+        mean of ``k`` states ``dt`` apart of a motion accelerating at ``qdd``), with
+        ``k dt`` the neighbours' spacing and ``qdd`` the second divided difference of its
+        own and its neighbours' means (``before``: the mean before the first, None at the
+        start of the record: uncorrected). Not across a hole or a short group (spacings
+        more than 1.5x apart)."""
         if before is not None:
             t_all = np.concatenate([before[0], tb]).astype(float) * 1e-9
             q_all = np.vstack([before[1], qb])
@@ -187,14 +207,22 @@ class JointBuffer:
                          - (q_all[i] - q_all[i - 1]) / h0[:, None]) / (h0 + h1)[:, None]
             T = 0.5 * (h0 + h1)
             even = np.maximum(h0, h1) <= 1.5 * np.minimum(h0, h1)
-            out[i - off] -= np.where(even[:, None], qdd * (T ** 2 / 24.0)[:, None], 0.0)
+            box = T ** 2 * (1.0 - 1.0 / k ** 2) / 24.0
+            out[i - off] -= np.where(even[:, None], qdd * box[:, None], 0.0)
         return tb[:-1], out
 
     @staticmethod
-    def _means(t: IntArray, q: FloatArray, k: int) -> tuple[IntArray, FloatArray]:
-        t0 = int(t[0]) if len(t) else 0
-        tb = np.round((t - t0).reshape(-1, k).mean(axis=1)).astype(np.int64) + t0
-        return tb, q.reshape(-1, k, q.shape[1]).mean(axis=1)
+    def _means(t: IntArray, q: FloatArray, starts: NDArray[np.intp]
+               ) -> tuple[IntArray, FloatArray]:
+        """Mean stamp (from each group's first, rounded) and angles of the groups of ``t, q``
+        that begin at ``starts`` (the last one to the end)."""
+        if not len(t) or not len(starts):
+            return np.zeros(0, np.int64), np.zeros((0, q.shape[1]))
+        n = np.diff(np.append(starts, len(t)))
+        t0 = t[starts]
+        dt = (t - np.repeat(t0, n)).astype(float)
+        tb = np.round(np.add.reduceat(dt, starts) / n).astype(np.int64) + t0
+        return tb, np.add.reduceat(q, starts, axis=0) / n[:, None]
 
     # ------------------------------------------------------------------ appending
     def append(self, stamp_ns: int, q: FloatArray) -> None:

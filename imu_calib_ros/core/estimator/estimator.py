@@ -368,11 +368,12 @@ class CalibrationEstimator:
         """Joint stamps the joint clock gave up on (taken on receipt, scattered by their
         delays): the joint record averages them in groups from now on
         (:meth:`.buffers.JointBuffer.set_group`), as many as the coarse start's
-        (:func:`.coarse.timing_group_size`), at least two."""
+        (:func:`.coarse.timing_group_size`, at most 0.1 s of them: none below 20 Hz)."""
         jc = self._guard.joint_clock
         if jc.scattered and self._joints.group == 1 and jc.period_ns > 0.0:
-            self._joints.set_group(max(2, timing_group_size(jc.period_ns * 1e-9,
-                                                            jc.timing_sigma_ns * 1e-9)))
+            k = timing_group_size(jc.period_ns * 1e-9, jc.timing_sigma_ns * 1e-9)
+            if k > 1:
+                self._joints.set_group(k, jc.period_ns)
 
     def _recorded(self, t_ns: Any, q: FloatArray) -> tuple[Any, FloatArray]:
         """Joint stamps and angles as the joint record holds them: the stamps minus the
