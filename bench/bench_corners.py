@@ -144,6 +144,10 @@ FACTORS: dict[str, Factor] = {
         joint_rate_hz=14.4, joint_stamp_jitter_s=0.036, **DROPS)),
     'nav_joints1000_jitter_drops': Factor('nav', config=dict(
         joint_rate_hz=1000.0, joint_stamp_jitter_s=4.8e-3, **DROPS)),
+    # the same joint states under encoder aiding (session 19: the filter's joint record
+    # averages scattered joint states in groups)
+    'cmems_joints1000_jitter_drops': Factor('consumer_mems', config=dict(
+        joint_rate_hz=1000.0, joint_stamp_jitter_s=4.8e-3, **DROPS)),
     # the table's base off level (session 18): a desk 1.15 deg, a bench 2 mrad, with all else
     'cmems_tilt20': Factor('consumer_mems', config=dict(base_tilt_rad=(0.012, -0.016))),
     'tac_tilt2': Factor('tactical', config=dict(base_tilt_rad=(-0.0012, 0.0016))),
@@ -162,7 +166,8 @@ DEFAULT = ('indmems_imu1000@srt3', 'indmems_imu50@srt3', 'tac_imu2000_point@srt3
            'cmems_all_at_once@kozlov3', 'cmems_all_at_once_l-50@kozlov3',
            'tac_all_at_once@kozlov3', 'nav_sqlite3@srt3', 'cmems_logjitter_slow@srt3',
            'tac_jointjitter_drops@random3', 'nav_joints1000_jitter_drops@kozlov3',
-           'cmems_tilt20@kozlov3', 'tac_tilt2@srt3', 'indmems_tilt_all_at_once@srt3')
+           'cmems_tilt20@kozlov3', 'tac_tilt2@srt3', 'indmems_tilt_all_at_once@srt3',
+           'cmems_joints1000_jitter_drops@srt3', 'cmems_joints1000_jitter_drops@kozlov3')
 
 
 def parse(name: str) -> tuple[Factor, int, int]:
