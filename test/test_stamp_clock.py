@@ -29,6 +29,29 @@ def _stream(rate_hz: float, jitter_s: float, n: int, seed: int = 0, drop: float 
     return true[keep], stamps[keep]
 
 
+def _burst_stream(seed: int, n: int, P: int, jitter_s: float, drop: float, read_ns: int = 0
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(true instants kept, receipt stamps U(0, jitter) late, increasing, which were kept):
+    ``drop`` of the messages lost in bursts of 5 on average; ``read_ns``: the host reads
+    every so often (the messages waiting then share one receipt stamp, 1 ns apart)."""
+    rng = np.random.default_rng(seed)
+    true = START + np.arange(n, dtype=np.int64) * P
+    late = true + np.round(rng.uniform(0.0, jitter_s, n) * 1e9).astype(np.int64)
+    if read_ns:
+        late = np.maximum.accumulate((late // read_ns + 1) * read_ns)
+    keep = np.ones(n, bool)
+    i = 0
+    while i < n:
+        if rng.random() < drop / 5.0:
+            length = int(rng.geometric(0.2))
+            keep[i:i + length] = False
+            i += length
+        i += 1
+    stamps = late[keep]
+    stamps = np.maximum.accumulate(stamps - np.arange(len(stamps))) + np.arange(len(stamps))
+    return true[keep], stamps, keep
+
+
 def _run(clock: StampClock, stamps: np.ndarray, batch: int) -> np.ndarray:
     return np.concatenate([clock(stamps[i:i + batch]) for i in range(0, len(stamps), batch)])
 
@@ -341,24 +364,11 @@ def test_drops_hidden_in_every_window_pass_as_given(seed: int) -> None:
     stamps up to 7 ms off their instants for seconds (and for a whole record where the
     counts never stopped holding); the windows now must agree before the clock counts, and
     the stamps pass as given, scattered by their delays (never further off than those)."""
-    rng = np.random.default_rng(seed)
-    n, P = 12_000, 1_000_000
-    true = START + np.arange(n, dtype=np.int64) * P
-    late = true + np.round(rng.uniform(0.0, 4.8e-3, n) * 1e9).astype(np.int64)
-    late = np.maximum.accumulate((late // 2_000_000 + 1) * 2_000_000)
-    keep = np.ones(n, bool)
-    i = 0
-    while i < n:  # bursts of 5 on average, 5 % in all
-        if rng.random() < 0.01:
-            length = int(rng.geometric(0.2))
-            keep[i:i + length] = False
-            i += length
-        i += 1
-    stamps = late[keep]
-    stamps = np.maximum.accumulate(stamps - np.arange(len(stamps))) + np.arange(len(stamps))
+    P = 1_000_000
+    true, stamps, keep = _burst_stream(seed, 12_000, P, 4.8e-3, 0.05, read_ns=2_000_000)
     c = StampClock()
     out = _run(c, stamps, 50)
-    err = (out - true[keep]).astype(float)
+    err = (out - true).astype(float)
     assert c.scattered and not c.smoothing
     assert np.ptp(err) <= 4.8e6 + 2e6  # the delays and the 2 ms reads, nothing more
     # what they are off by, for the encoder attitude's noise and the joint groups: the
@@ -378,24 +388,12 @@ def test_a_lone_window_under_a_period_of_delays_still_counts() -> None:
     hides until the envelope shows its step miscounts a few stamps, as for wider delays."""
     counted = 0
     for seed in range(10):
-        rng = np.random.default_rng(seed)
-        n, P = 9000, int(round(1e9 / 15.2))
-        true = START + np.arange(n, dtype=np.int64) * P
-        late = true + np.round(rng.uniform(0.0, 0.060, n) * 1e9).astype(np.int64)
-        keep = np.ones(n, bool)
-        i = 0
-        while i < n:  # bursts of 5 on average, 3.6 % in all
-            if rng.random() < 0.036 / 5.0:
-                length = int(rng.geometric(0.2))
-                keep[i:i + length] = False
-                i += length
-            i += 1
-        stamps = late[keep]
-        stamps = np.maximum.accumulate(stamps - np.arange(len(stamps))) + np.arange(len(stamps))
+        P = int(round(1e9 / 15.2))
+        true, stamps, _ = _burst_stream(seed, 9000, P, 0.060, 0.036)
         c = StampClock()
         out = _run(c, stamps, 7)
         if c.sequential and c.smoothing:
             counted += 1
-            mis = _miscounted(out, true[keep], P)[LEARN_SAMPLES:]
+            mis = _miscounted(out, true, P)[LEARN_SAMPLES:]
             assert mis.sum() <= 4.0 * 0.036 * len(mis) + 1
     assert counted >= 6
