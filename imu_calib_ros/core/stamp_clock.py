@@ -35,7 +35,10 @@ least-squares line converges as ``spread / N^1.5`` (a uniform 2 ms delay over 1,
    lagged: those stamps are counted again from the step); a stamp is never given a count
    whose instant is after it (a delay is never negative). Frequent drops in a spread of
    more than a period cannot be counted (a slightly longer period fits a few hundred
-   stamps): when the stamps leave the line the stream passes as given from there;
+   stamps): when the stamps leave the line the stream passes as given from there, and
+   from the clock's decision when no learnt window holds on the other learnt stamps, or
+   those over a period of delays find no other to agree on the period (drops hidden in
+   every window);
 3. either way, streams that are not periodic pass as given: an event-driven publisher,
    whose stamps wander about any line as the sum of its intervals where receipt delays are a
    new draw at each message (:func:`_fresh`), and delays no count explains;
@@ -487,9 +490,11 @@ class StampClock:
         period of it, the residuals fresh draws (:func:`_fresh`). A drop the counting could
         not see (a spread of delays over a period) lengthens a window's period by
         ``P / SEQ_LEARN`` (a crystal's error is below 1e-4): the shortest period of those
-        that pass wins. The learnt stamps after its window are counted as later ones are.
-        With none, the clock learns again, :data:`SEQ_TRIES` times in all before the stream
-        is taken as not periodic."""
+        that pass and hold wins (:meth:`_window_holds`; a window whose delays spread over
+        more than a period only where another agrees with it). The learnt stamps after its
+        window are counted as later ones are. With none that passes, the clock learns
+        again, :data:`SEQ_TRIES` times in all before the stream is taken as not periodic;
+        with some that pass but none that holds, the stamps pass as given, scattered."""
         self._tries += 1
         s = (t - t[0]).astype(float)
         folded = fold_counts(s, float(np.median(np.diff(t))))
