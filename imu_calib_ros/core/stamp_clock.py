@@ -540,11 +540,10 @@ class StampClock:
         # several periods (a period a few per cent long, stamps put up to 7 ms off over 1 kHz
         # joint states 0-4.8 ms late before the counts stopped holding): as given, scattered
         self.decided = True
-        self._hist_s = (t - t[0]).astype(float)
         # (the median interval of stamps read in bursts is not the period: the mean is,
         # drops aside)
         self.period_ns = float(t[-1] - t[0]) / (len(t) - 1)
-        self._give_up()
+        self._give_up((t - t[0]).astype(float))
         return True
 
     def _window_holds(self, t: IntArray, w0: int, k: FloatArray, hi: float) -> bool:
@@ -679,17 +678,19 @@ class StampClock:
         self._k_last, self._s_last = k_prev, int(t[-1])
         return self._finish(out, t)
 
-    def _give_up(self) -> None:
+    def _give_up(self, s: FloatArray | None = None) -> None:
         """The stream stopped fitting the line: stamps as given from here on, and no
-        revision of earlier ones (they rest on that line)."""
+        revision of earlier ones (they rest on that line). ``s``: the last stamps [ns] (by
+        default those the line rested on)."""
         self.irregular, self.smoothing = True, False
         # receipt delays that could not be counted: the stamps pass as given, late by their
         # own delays; the intervals' scatter for the failure's line (two delays each, drops
         # included), the delays' own for what the stamps given out are off by
         self.scattered = True
-        if len(self._hist_s) > 8:
-            self.jitter_ns = max(self.jitter_ns, float(np.std(np.diff(self._hist_s))))
-            self.delay_scatter_ns = delay_scatter(self._hist_s)
+        s = self._hist_s if s is None else s
+        if len(s) > 8:
+            self.jitter_ns = max(self.jitter_ns, float(np.std(np.diff(s))))
+            self.delay_scatter_ns = delay_scatter(s)
         self._rev_from, self._rev_to = np.zeros(0, np.int64), np.zeros(0, np.int64)
         self._recording = self.revision_pending = False
 

@@ -128,6 +128,11 @@ class JointBuffer:
         self.group = max(1, int(k))
         self._hole_ns = max(0.5 * self.group, JOINT_HOLE_PERIODS) * float(period_ns)
 
+    @property
+    def _grouping(self) -> bool:
+        """States go through the groups (grouping on, or groups not yet stored)."""
+        return self.group > 1 or bool(len(self._pend_t)) or self._held is not None
+
     def flush_group(self) -> None:
         """Store the groups not yet stored (the end of the data): the last complete one
         and the incomplete one's mean, uncorrected."""
@@ -149,7 +154,7 @@ class JointBuffer:
         """The groups that can be stored now: the complete groups' means of the incomplete
         group and ``t, q`` (the rest kept; a group also ends before a hole), each once the
         next is there (:meth:`_box_corrected`)."""
-        if self.group <= 1 and not len(self._pend_t) and self._held is None:
+        if not self._grouping:
             return t, q
         if len(self._pend_t) and self._pend_q is not None:
             t, q = np.concatenate([self._pend_t, t]), np.vstack([self._pend_q, q])
@@ -230,7 +235,7 @@ class JointBuffer:
         if self._last_q is not None:  # unwrap against the previous sample
             q = q + 2 * np.pi * np.round((self._last_q - q) / (2 * np.pi))
         self._last_q = q
-        if self.group > 1 or len(self._pend_t) or self._held is not None:
+        if self._grouping:
             tg, qg = self._grouped(np.array([stamp_ns], np.int64), q[None, :])
             self.t_ns.extend(tg.tolist())
             self.q_rad.extend(qg)

@@ -257,8 +257,7 @@ class CalibrationEstimator:
         if q is not None and self._boot is not None:
             self._boot.hold_joints(np.array([t], np.int64), q[None, :])
         elif q is not None:  # joint stamps minus the measured latency: the instants they describe
-            self._group_scattered_joints()
-            self._joints.append(*self._recorded(t, q))
+            self._record_joints(t, q)
         self._sync_input_counters()
 
     def push_joint_batch(self, batch: JointBatch) -> None:
@@ -269,8 +268,7 @@ class CalibrationEstimator:
         if len(t) and self._boot is not None:
             self._boot.hold_joints(t, q)
         elif len(t):
-            self._group_scattered_joints()
-            self._joints.extend(*self._recorded(t, q))
+            self._record_joints(t, q)
         self._sync_input_counters()
 
     def flush(self) -> None:
@@ -364,16 +362,22 @@ class CalibrationEstimator:
                                           parameter_covariance(st, self.layout, self._prior)]},
                         **({'history': h} if (h := self.history.as_dict()) else {})})
 
-    def _group_scattered_joints(self) -> None:
-        """Joint stamps the joint clock gave up on (taken on receipt, scattered by their
-        delays): the joint record averages them in groups from now on
-        (:meth:`.buffers.JointBuffer.set_group`), as many as the coarse start's
-        (:func:`.coarse.timing_group_size`, at most 0.1 s of them: none below 20 Hz)."""
+    def _record_joints(self, t_ns: Any, q: FloatArray) -> None:
+        """Accepted joint states into the joint record (:meth:`_recorded`; one state: a
+        stamp and its angles, else arrays of them). Joint stamps the
+        joint clock gave up on (taken on receipt, scattered by their delays): the record
+        averages them in groups from then on (:meth:`.buffers.JointBuffer.set_group`), as
+        many as the coarse start's (:func:`.coarse.timing_group_size`, at most 0.1 s of
+        them: none below 20 Hz)."""
         jc = self._guard.joint_clock
-        if jc.scattered and self._joints.group == 1 and jc.period_ns > 0.0:
+        if jc.scattered and self._joints.group == 1:
             k = timing_group_size(jc.period_ns * 1e-9, jc.timing_sigma_ns * 1e-9)
             if k > 1:
                 self._joints.set_group(k, jc.period_ns)
+        if np.ndim(t_ns) == 0:
+            self._joints.append(*self._recorded(t_ns, q))
+        else:
+            self._joints.extend(*self._recorded(t_ns, q))
 
     def _recorded(self, t_ns: Any, q: FloatArray) -> tuple[Any, FloatArray]:
         """Joint stamps and angles as the joint record holds them: the stamps minus the
@@ -999,8 +1003,7 @@ class CalibrationEstimator:
             if item[0] == 'imu':
                 self._accept_imu(*item[1:])
             elif len(item[1]):
-                self._group_scattered_joints()
-                self._joints.extend(*self._recorded(item[1], item[2]))
+                self._record_joints(item[1], item[2])
         return True
 
     def _revise_held_stamps(self) -> None:
