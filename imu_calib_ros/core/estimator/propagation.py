@@ -58,6 +58,50 @@ class Block:
         return q
 
 
+class RowWindow:
+    """Centred means over ``+-k`` rows of ``(3, N)`` arrays, each window cut at the array's
+    ends and at gaps: the argument of the compensation's ``|omega|``, ``|f|`` and ``f^2``.
+
+    CONTRACT 3's asymmetry terms take the *true* rate's magnitude; a noisy sample's magnitude
+    is biased (rectified): at rest ``E|n| = 0.8 sigma``, so ``ag |w|`` put ``ag 0.8 sigma``
+    into every rate (5.3 deg/h on a consumer gyro at 1 kHz with ``ag`` 0.3 %, the gyro biases
+    that much off, a third of their sigma; the accelerometer asymmetry likewise). The mean
+    over ``2 k + 1`` samples has ``1 / sqrt(2 k + 1)`` of the noise, and a motion's rate is
+    linear over ``+-k`` samples (``+-5 ms`` at 1 kHz, :func:`omega_dot_half_span`) except at
+    its corners, whose ``ag`` share integrates to zero over a turn (a centred mean keeps the
+    integral). Hand-written: a moving mean cut at gaps is a few cumulative sums, and
+    ``scipy.ndimage.uniform_filter1d`` has no cut."""
+
+    def __init__(self, n: int, k: int, gap: NDArray[np.bool_] | None = None) -> None:
+        """``n`` rows, half-width ``k``; ``gap`` (n - 1,): True where row ``i + 1`` follows a
+        gap (no window spans it)."""
+        i = np.arange(n)
+        if gap is not None and gap.any():
+            brk = np.concatenate([[True], np.asarray(gap, bool)])
+            seg = np.cumsum(brk) - 1
+            starts = np.flatnonzero(brk)
+            stops = np.append(starts[1:] - 1, n - 1)
+            first, last = starts[seg], stops[seg]
+        else:
+            first, last = np.zeros(n, np.intp), np.full(n, n - 1)
+        self.lo = np.maximum(i - k, first)
+        self.hi1 = np.minimum(i + k, last) + 1
+        self.count = (self.hi1 - self.lo).astype(float)
+        self.k = k
+
+    def __call__(self, x: FloatArray) -> FloatArray:
+        """The window means of ``x`` (3, n)."""
+        if self.k == 0:
+            return x
+        c = np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(x, axis=1)], axis=1)
+        return (c[:, self.hi1] - c[:, self.lo]) / self.count
+
+    @staticmethod
+    def none(x: FloatArray) -> FloatArray:
+        """No window: each sample's own value (``sensor_model.compensate``'s argument)."""
+        return x
+
+
 #: Relative change at which the compensation has converged (``sensor_model``'s, a few ulps).
 _TINY = 4.0 * float(np.finfo(float).eps)
 
@@ -79,6 +123,8 @@ class BlockCompensation:
     g-sensitivity (``G = 0``) the rates do not depend on the specific force: they are iterated
     alone, once for the block and its margins, and the specific force with the rates fixed.
     Inputs must be finite (:func:`propagate_block` falls back to ``compensate`` otherwise).
+    ``window``: the argument of the nonlinear terms (``|omega|``, ``|f|``, ``f^2``) is the
+    :class:`RowWindow` mean of the iterate (default: the iterate itself, ``compensate``'s).
     """
 
     ig: FloatArray  # (I + Kg)^-1
@@ -110,32 +156,38 @@ class BlockCompensation:
                    np.array([[0.0, r[0, 2], -r[0, 1]], [-r[1, 2], 0.0, r[1, 0]],
                              [r[2, 1], -r[2, 0], 0.0]]))
 
-    def rates(self, w_raw: FloatArray, f_raw: FloatArray) -> FloatArray:
+    def rates(self, w_raw: FloatArray, f_raw: FloatArray,
+              window: Any = RowWindow.none) -> FloatArray:
         """Compensated rates ``(3, N)`` of raw ``(N, 3)`` samples with ``omega_dot = 0``."""
         wm = w_raw.T - self.bg
         if self.G is None:
-            return self._rates_alone(wm)
-        return self._coupled(wm, f_raw.T - self.ba, None)[0]
+            return self._rates_alone(wm, window)
+        return self._coupled(wm, f_raw.T - self.ba, None, window)[0]
 
     def samples(self, w_raw: FloatArray, f_raw: FloatArray, omega_dot: FloatArray,
-                rates: FloatArray) -> tuple[FloatArray, FloatArray]:
+                rates: FloatArray, window: Any = RowWindow.none
+                ) -> tuple[FloatArray, FloatArray]:
         """Compensated ``(3, N)`` rates and specific forces with ``omega_dot (3, N)``;
-        ``rates``: :meth:`rates` of the same samples (used as they are when ``G = 0``)."""
+        ``rates``: :meth:`rates` of the same samples and window (used as they are when
+        ``G = 0``)."""
         am = f_raw.T - self.ba
         if self.r is not None:
             am = am - self.r_wd @ omega_dot  # the omega_dot part of the size effect
         if self.G is None:
-            return rates, self._forces_alone(am, rates)
-        return self._coupled(w_raw.T - self.bg, am, omega_dot)
+            return rates, self._forces_alone(am, rates, window)
+        return self._coupled(w_raw.T - self.bg, am, omega_dot, window)
 
-    def _gyro_step(self, wm: FloatArray, w: FloatArray, f: FloatArray | None) -> FloatArray:
-        u = wm - self.ag * np.abs(w)
+    def _gyro_step(self, wm: FloatArray, w: FloatArray, f: FloatArray | None,
+                   window: Any) -> FloatArray:
+        u = wm - self.ag * np.abs(window(w))
         if self.G is not None and f is not None:
             u = u - self.G @ f
         return self.ig @ u
 
-    def _accel_step(self, am: FloatArray, w: FloatArray, f: FloatArray) -> FloatArray:
-        v = am - (self.aa * np.abs(f) + self.qa * f * f)
+    def _accel_step(self, am: FloatArray, w: FloatArray, f: FloatArray,
+                    window: Any) -> FloatArray:
+        fw = window(f)
+        v = am - (self.aa * np.abs(fw) + self.qa * fw * fw)
         if self.r is not None:
             v = v - w * (self.r @ w)  # omega x (omega x r_i), i-th component
         return self.ia @ v
@@ -153,22 +205,23 @@ class BlockCompensation:
             if stop(change):
                 return x
 
-    def _rates_alone(self, wm: FloatArray) -> FloatArray:
-        return self._iterate(self.ig @ wm, lambda w: self._gyro_step(wm, w, None), 1e-12)
+    def _rates_alone(self, wm: FloatArray, window: Any) -> FloatArray:
+        return self._iterate(self.ig @ wm, lambda w: self._gyro_step(wm, w, None, window),
+                             1e-12)
 
-    def _forces_alone(self, am: FloatArray, w: FloatArray) -> FloatArray:
-        return self._iterate(self.ia @ am, lambda f: self._accel_step(am, w, f), 1e-9)
+    def _forces_alone(self, am: FloatArray, w: FloatArray, window: Any) -> FloatArray:
+        return self._iterate(self.ia @ am, lambda f: self._accel_step(am, w, f, window), 1e-9)
 
-    def _coupled(self, wm: FloatArray, am: FloatArray, omega_dot: FloatArray | None
-                 ) -> tuple[FloatArray, FloatArray]:
+    def _coupled(self, wm: FloatArray, am: FloatArray, omega_dot: FloatArray | None,
+                 window: Any) -> tuple[FloatArray, FloatArray]:
         """Both (``omega_dot`` already in ``am``; None: zero)."""
         w, f = self.ig @ wm, self.ia @ am
         w_scale = np.maximum(np.abs(w).max(axis=0), 1e-12)
         f_scale = np.maximum(np.abs(f).max(axis=0), 1e-9)
         stop = _Stop()
         while True:
-            w_new = self._gyro_step(wm, w, f)
-            f_new = self._accel_step(am, w_new, f)
+            w_new = self._gyro_step(wm, w, f, window)
+            f_new = self._accel_step(am, w_new, f, window)
             change = max(float((np.abs(w_new - w) / w_scale).max()),
                          float((np.abs(f_new - f) / f_scale).max()))
             w, f = w_new, f_new
@@ -370,8 +423,10 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     # of the compensated rates: with raw ones, a raw unit's 0.5 % scale error made the
     # size effect 1 % (6 sigma) wrong (issue 11); the gyro part needs no omega_dot
     comp = BlockCompensation.of(errors) if np.isfinite(ww.sum() + ff.sum()) else None
+    window = RowWindow(len(ww), h, gap)  # the nonlinear terms' argument (rectification)
     if comp is not None:
-        rates = comp.rates(ww, ff)  # (3, m + 2 h)
+        w_raw = ww
+        rates = comp.rates(ww, ff, window)  # (3, m + 2 h)
         ww = rates.T
     else:  # a non-finite sample: compensate's NaN rows (the navigator then refuses them)
         ww = sm.compensate(errors, ww, ff, np.zeros_like(ww))[0]
@@ -385,10 +440,17 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     wd_all = np.vstack([wd, wd[-1:]])  # the first look-ahead sample: reuse
     w, f = w[:m + 1], f[:m + 1]
     if comp is not None:
-        w_c3, f_c3 = comp.samples(w, f, wd_all.T, rates[:, h:h + m + 1])
-        w_c, f_c = np.ascontiguousarray(w_c3.T), np.ascontiguousarray(f_c3.T)
+        # every row, so that the windows of the block's rows see their neighbours' forces
+        # (omega_dot of the margins: their nearest block row's, for the size effect alone)
+        wd_rows = np.vstack([np.repeat(wd[:1], h, axis=0), wd_all,
+                             np.repeat(wd[-1:], h - 1, axis=0)])
+        w_c3, f_c3 = comp.samples(w_raw, ff, wd_rows.T, rates, window)
+        w_s = window(w_c3)[:, h:h + m].T  # the Jacobians' |omega| (rectification)
+        w_c = np.ascontiguousarray(w_c3[:, h:h + m + 1].T)
+        f_c = np.ascontiguousarray(f_c3[:, h:h + m + 1].T)
     else:
         w_c, f_c = sm.compensate(errors, w, f, wd_all)
+        w_s = w_c[:m]
     if time_offset_s != 0.0:
         f_c = f_c - time_offset_s * np.vstack([fd, fd[-1:]])
     dt = dt_all[h - 1:h - 1 + m]
@@ -401,9 +463,9 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     # is the block's mean navigation-frame specific force in each sample's IMU frame
     # (:func:`table_specific_force`), not the sample itself
     f_j = table_specific_force(R_mid, out.f_enu_m_s2) if table else f_c[:m]
-    Mg = em.gyro_jacobian(w_c[:m], f_j)
+    Mg = em.gyro_jacobian(w_s, f_j)
     Ma = em.accel_jacobian(w_c[:m], wd, f_j, fd)
-    Dg_inv, Da_inv = em.compensation_inverses(errors, w_c[:m], f_j)
+    Dg_inv, Da_inv = em.compensation_inverses(errors, w_s, f_j)
     rows = chunk_transition_rows(layout, R_mid.reshape(B, n, 3, 3),
                                  out.f_enu_m_s2.reshape(B, n, 3),
                                  Mg.reshape(B, n, 3, em.N_GYRO),
