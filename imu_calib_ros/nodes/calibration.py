@@ -335,7 +335,7 @@ class CalibrationNode(Node):
         except ImuCalibError:
             self._joint_rejected['bad_message'] += 1
             return
-        if not all(n in sample.names for n in self.joint_names):
+        if not any(n in sample.names for n in self.joint_names):
             self._joint_names_seen = sample.names
             self._joint_rejected['joint_names'] += 1
             return
@@ -344,7 +344,8 @@ class CalibrationNode(Node):
             return
         self._joint_ok = True
         self._last_joint_ns = sample.stamp_ns
-        self.counts['missing_joint'] += self._joint_gaps.push(sample.stamp_ns)
+        if self.joint_names[0] in sample.names:  # one axis per message: the outer's stamps
+            self.counts['missing_joint'] += self._joint_gaps.push(sample.stamp_ns)
         self._pending_joints.append(sample)
 
     def _on_time_jump(self, jump: Any) -> None:

@@ -46,6 +46,7 @@ from scipy.spatial.transform import Rotation
 from .. import sensor_model as sm
 from ..errors import InputError
 from ..input_guard import GuardConfig, InputGuard
+from ..joint_merge import JointMerger
 from ..rotation import rotvec_to_matrix
 from ..stamp_clock import scatter_hint
 from ..strapdown import Strapdown
@@ -191,6 +192,7 @@ class CalibrationEstimator:
         self.guard_config: GuardConfig = gcfg
         self._guard = InputGuard(gcfg, self.fixture.site.gravity, self._joint_names,
                                  self.fixture.angular_axes_enu)
+        self._merger: JointMerger | None = None  # joint states one axis at a time
         # the stamps the start's held data were revised to, for this pass too
         self._revised: tuple[Any, Any] = (None, None) if self.start is None \
             else self.start.stamp_revisions
@@ -250,7 +252,12 @@ class CalibrationEstimator:
                                   batch.frame_id)
 
     def push_joint(self, sample: JointSample) -> None:
-        """Add one joint-state sample (names in any order; other joints ignored)."""
+        """Add one joint-state sample (names in any order; other joints ignored; a sample
+        with only some of the fixture joints goes through :class:`~..joint_merge.JointMerger`)."""
+        if self._partial(sample.names):
+            self._push_partial(np.array([sample.stamp_ns], np.int64), tuple(sample.names),
+                               np.asarray(sample.positions_rad, float)[None, :])
+            return
         q = self._guard.check_joint(int(sample.stamp_ns), tuple(sample.names),
                                     sample.positions_rad)
         t = self._guard.last_joint_clock_ns  # on the sender's clock (stamps taken on receipt)
@@ -263,8 +270,35 @@ class CalibrationEstimator:
     def push_joint_batch(self, batch: JointBatch) -> None:
         """Add many joint-state samples: the same verdicts, unwrapping and buffers as
         :meth:`push_joint` one by one, vectorised (input guard ``check_joint_batch``)."""
-        t, q = self._guard.check_joint_batch(batch.stamps_ns, tuple(batch.names),
-                                             batch.positions_rad)
+        if self._partial(batch.names):
+            self._push_partial(np.asarray(batch.stamps_ns, np.int64), tuple(batch.names),
+                               np.asarray(batch.positions_rad, float))
+            return
+        self._accept_joints(batch.stamps_ns, tuple(batch.names), batch.positions_rad)
+
+    @property
+    def partial_joints_seen(self) -> tuple[str, ...]:
+        """The fixture joints that came in joint states carrying only some of them."""
+        m = self._merger
+        return () if m is None else tuple(n for n in self._joint_names if n in m.seen)
+
+    def _partial(self, names: Any) -> bool:
+        """Some of the fixture joints but not all (one publisher per axis)."""
+        have = set(names)
+        wanted = self._joint_names
+        return any(n in have for n in wanted) and not all(n in have for n in wanted)
+
+    def _push_partial(self, t: Any, names: tuple[str, ...], q: Any) -> None:
+        if self._merger is None:
+            self._merger = JointMerger(self._joint_names)
+        t_full, q_full = self._merger.push(t, names, q)
+        if len(t_full):
+            self._accept_joints(t_full, self._joint_names, q_full)
+        else:
+            self._sync_input_counters()
+
+    def _accept_joints(self, stamps_ns: Any, names: tuple[str, ...], positions: Any) -> None:
+        t, q = self._guard.check_joint_batch(stamps_ns, names, positions)
         if len(t) and self._boot is not None:
             self._boot.hold_joints(t, q)
         elif len(t):

@@ -284,6 +284,11 @@ def _check_usable(est: CalibrationEstimator, ledger: RunLedger, fixture: Fixture
         names = ', '.join(fixture.joint_names)
         what = ('joint states lack the fixture joints ' + names if c['joint_missing_names']
                 else 'no joint states in the input')
+        seen = est.partial_joints_seen
+        if seen:  # some fixture joints came (alone or with others), one never did
+            never = [n for n in fixture.joint_names if n not in seen]
+            what = (f'the joint states never carry the fixture joint{"s" * (len(never) > 1)} '
+                    f'{", ".join(never)} (they carry {", ".join(seen)})')
         raise InputError(f'{what}: check --joint-topic and the fixture file')
     if not est.is_running and est.counters['imu_processed'] == 0:
         gap = ledger.longest_joint_gap_s()
