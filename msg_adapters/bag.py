@@ -681,10 +681,13 @@ def _concat_imu(parts: list[ImuBatch]) -> ImuBatch:
 
 
 def _concat_joints(parts: list[JointBatch], path: Path, topic: str) -> JointBatch:
-    """Join chunk batches onto the first chunk's joint-name order."""
+    """Join chunk batches onto the first chunk's joint-name order (messages that carry other
+    sets of joints: :func:`_merge_joint_sets`)."""
     if len(parts) == 1:
         return parts[0]
     names = parts[0].names
+    if any(set(b.names) != set(names) for b in parts):
+        return _merge_joint_sets(parts)
     pos, vel = [], []
     any_vel = any(b.velocities_rad_s is not None for b in parts)
     for b in parts:
@@ -700,6 +703,39 @@ def _concat_joints(parts: list[JointBatch], path: Path, topic: str) -> JointBatc
         vel.append(np.full_like(b.positions_rad, np.nan) if v is None else v[:, order])
     return JointBatch(np.concatenate([b.stamps_ns for b in parts]), names,
                       np.concatenate(pos), np.concatenate(vel) if any_vel else None)
+
+
+#: a joint whose merged positions are holes at more than this share of the instants is left
+#: out of a merged joint batch (another publisher's joint, sent now and then)
+MERGE_MAX_HOLE_SHARE = 0.5
+
+
+def _merge_joint_sets(parts: list[JointBatch]) -> JointBatch:
+    """One batch from joint states that carry different sets of joints (one message per
+    axis; another publisher's joints on the same topic), as the estimator merges them
+    (:class:`~imu_calib_ros.core.joint_merge.JointMerger`): at the stamps of the set sent
+    most often (its first joint), every joint by its own series. A joint that is a hole at
+    most instants is left out, then instants with a hole are; positions only."""
+    from imu_calib_ros.core.joint_merge import JointMerger
+    names: list[str] = []
+    rows: dict[tuple[str, ...], int] = {}
+    for b in parts:
+        names += [n for n in b.names if n not in names]
+        key = tuple(sorted(b.names))
+        rows[key] = rows.get(key, 0) + len(b)
+    main = max(rows, key=lambda k: rows[k])
+    first = next(b.names[0] for b in parts if tuple(sorted(b.names)) == main)
+    merger = JointMerger(tuple(names), reference=names.index(first), hole=math.nan)
+    out = [merger.push(b.stamps_ns, b.names, b.positions_rad) for b in parts]
+    out.append(merger.finish())
+    t = np.concatenate([o[0] for o in out])
+    q = np.concatenate([o[1] for o in out])
+    keep = np.isnan(q).mean(axis=0) <= MERGE_MAX_HOLE_SHARE if len(t) else \
+        np.ones(len(names), bool)
+    q = q[:, keep]
+    full = ~np.isnan(q).any(axis=1)
+    return JointBatch(t[full], tuple(n for n, k in zip(names, keep, strict=True) if k),
+                      q[full], None)
 
 
 # --------------------------------------------------------------------------------------------

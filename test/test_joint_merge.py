@@ -98,6 +98,21 @@ def test_a_paused_axis_leaves_a_hole() -> None:
     assert merger.dropped_instants >= 15
 
 
+def test_an_axis_that_stops_holds_nothing_back() -> None:
+    """The middle axis stops at 1 s for good: the instants after its limit are decided as
+    they come (holes), not held until the end."""
+    msgs = [m for m in _per_axis((100.0,) * 3, (0.0, 0.002, 0.004))
+            if not (m[1] == 'middle' and m[0] > 1.0e9)]
+    merger = JointMerger(NAMES, hole=math.nan)
+    t, q = _push_all(msgs, merger)
+    assert len(merger._instants) <= 3  # what waits for the newest stamps only
+    assert t[-1] > 3.9e9
+    hole = np.isnan(q[:, 1:])  # (the first instant: nothing before it on the others)
+    assert not hole[(t > 0) & (t < 1.0e9)].any()
+    assert hole[t > 1.0e9 + MAX_BRACKET_PERIODS * 1e7, 0].all()
+    assert not hole[t > 0, 1].any()
+
+
 def test_batches_are_single_pushes() -> None:
     msgs = _per_axis((100.0, 100.0, 50.0), (0.0, 0.005, 0.003))
     t1, q1 = _push_all(msgs, JointMerger(NAMES))
@@ -124,8 +139,11 @@ def test_other_joints_and_messages_without_fixture_joints_are_ignored() -> None:
 
 
 # ------------------------------------------------------------------------ the plain command
-def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states') -> int:
-    """Rewrite a bag with each JointState as one message per joint (same stamp)."""
+def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states',
+                    other_at: tuple[int, ...] = ()) -> int:
+    """Rewrite a bag with each JointState as one message per joint (same stamp); with
+    ``other_at``, no split, but another publisher's joint ``gripper`` before the joint states
+    of those indices."""
     from rosbags.highlevel import AnyReader
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -135,11 +153,21 @@ def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states') -> int:
     with AnyReader([src], default_typestore=ts) as r, Writer(dst, version=9) as w:
         conns = {c.topic: w.add_connection(c.topic, c.msgtype, typestore=ts)
                  for c in r.connections}
+        k_msg = -1
         for c, t, raw in r.messages():
             if c.topic != topic:
                 w.write(conns[c.topic], t, raw)
                 continue
             msg = r.deserialize(raw, c.msgtype)
+            k_msg += 1
+            if other_at:
+                if k_msg in other_at:
+                    other = JS(header=msg.header, name=['gripper'], position=np.array([0.02]),
+                               velocity=np.zeros(0), effort=np.zeros(0))
+                    w.write(conns[c.topic], t, ts.serialize_cdr(other, c.msgtype))
+                w.write(conns[c.topic], t, raw)
+                n += 1
+                continue
             for k, name in enumerate(msg.name):
                 vel = msg.velocity[k:k + 1] if len(msg.velocity) else np.zeros(0)
                 part = JS(header=msg.header, name=[name], position=msg.position[k:k + 1],
@@ -172,3 +200,28 @@ def test_plain_command_on_a_bag_split_per_axis(tmp_path: Path) -> None:
             sig = np.asarray(calibs[0]['sigma'][sensor][key], float)
             d = np.abs(np.asarray(calibs[1][sensor][key], float) - np.asarray(v, float))
             assert np.all(d <= 1e-3 * np.maximum(sig, 1e-30)), (sensor, key)
+
+
+def test_read_bag_of_a_split_bag_and_of_another_publisher(tmp_path: Path) -> None:
+    """``read_bag`` (``imu-calib noise``, ``report``, the analytic methods) raised "joint names
+    change" on both; now the split bag reads as the bag it came from, and a publisher of
+    another joint now and then is left out."""
+    from msg_adapters.bag import read_bag
+
+    from imu_calib_ros.cli import main
+    from imu_calib_ros.testing.world_cases import make_case
+    bag, _ = make_case(tmp_path, unit='nav', size=1.0, seed=12, plan='static_6pos')
+    _, ref = read_bag(bag)
+    q_ref = np.unwrap(ref.positions_rad[:, [ref.names.index(n) for n in NAMES]], axis=0)
+    for kind, kw in (('split', {}), ('other', {'other_at': (5, 900, 4000)})):
+        out = tmp_path / kind
+        _split_per_axis(Path(bag), out, **kw)
+        _, j = read_bag(out)
+        assert set(j.names) == set(NAMES), j.names
+        assert np.array_equal(j.stamps_ns, ref.stamps_ns)
+        q = np.unwrap(j.positions_rad[:, [j.names.index(n) for n in NAMES]], axis=0)
+        np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-12)
+    err = io.StringIO()
+    with redirect_stderr(err):
+        rc = main(['noise', str(tmp_path / 'split'), '--output', str(tmp_path / 'n.yaml')])
+    assert rc == 0, err.getvalue()

@@ -18,6 +18,7 @@ holes is not what ``scipy.interpolate`` offers.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from typing import Any
@@ -38,25 +39,31 @@ _HISTORY = 16  # intervals per joint for its median
 class JointMerger:
     """Streaming: :meth:`push` partial samples, take the complete ones it returns."""
 
-    def __init__(self, joint_names: tuple[str, ...] | list[str]) -> None:
+    def __init__(self, joint_names: tuple[str, ...] | list[str], reference: int | None = None,
+                 hole: float | None = None) -> None:
+        """``reference``: the joint (index) whose stamps are the output instants (default:
+        the first fixture joint of the first partial sample); ``hole``: the value of a joint
+        its series does not bracket at an instant (default None: the instant is dropped)."""
         self.joint_names = tuple(joint_names)
         self._index = {n: i for i, n in enumerate(self.joint_names)}
-        self._series: list[deque[tuple[int, float]]] = [deque() for _ in self.joint_names]
-        self._intervals: list[deque[int]] = [deque(maxlen=_HISTORY) for _ in self.joint_names]
-        self.reference: int | None = None  # the joint whose stamps are the output instants
+        n = len(self.joint_names)
+        self._t: list[list[int]] = [[] for _ in range(n)]  # each joint's stamps
+        self._q: list[list[float]] = [[] for _ in range(n)]  # and unwrapped positions
+        self._intervals: list[deque[int]] = [deque(maxlen=_HISTORY) for _ in range(n)]
+        self.reference = reference  # the joint whose stamps are the output instants
+        self.hole = hole
         self._instants: deque[int] = deque()
-        self.seen: set[str] = set()  # fixture joints that came in partial samples
-        self.partial_samples = 0
+        self._newest = -(2 ** 63)  # newest stamp of any joint
+        self.seen: set[str] = set()  # the merged joints that came
         self.dropped_instants = 0
 
     def push(self, stamps_ns: Any, names: tuple[str, ...] | list[str],
              positions_rad: Any) -> tuple[IntArray, FloatArray]:
-        """Add samples of one name list (any subset of the fixture joints; others ignored);
-        return the complete samples now ready: stamps (K,), positions (K, n) in fixture order."""
+        """Add samples of one name list (any subset of the joints; others ignored); return the
+        complete samples now ready: stamps (K,), positions (K, n) in ``joint_names`` order."""
         t_all = np.asarray(stamps_ns, np.int64).reshape(-1)
         q_all = np.asarray(positions_rad, float).reshape(len(t_all), -1)
         cols = [(k, self._index[nm]) for k, nm in enumerate(names) if nm in self._index]
-        self.partial_samples += len(t_all)
         if not cols:
             return np.zeros(0, np.int64), np.zeros((0, len(self.joint_names)))
         self.seen.update(self.joint_names[j] for _, j in cols)
@@ -64,36 +71,55 @@ class JointMerger:
             self.reference = min(j for _, j in cols)
         for row, t in enumerate(t_all.tolist()):
             for k, j in cols:
-                self._add(j, t, float(q_all[row, k]))
-                if j == self.reference and math.isfinite(q_all[row, k]):
-                    if not self._instants or t > self._instants[-1]:
-                        self._instants.append(t)
+                if self._add(j, t, float(q_all[row, k])) and j == self.reference:
+                    self._instants.append(t)
         return self._emit()
 
-    def _add(self, j: int, t: int, q: float) -> None:
-        s = self._series[j]
-        if not math.isfinite(q) or (s and t <= s[-1][0]):
-            return  # the guard counts what the complete samples carry; a repeat adds nothing
-        if s:
-            q0 = s[-1][1]
-            q = q - 2.0 * math.pi * round((q - q0) / (2.0 * math.pi))  # unwrap on its own
-            self._intervals[j].append(t - s[-1][0])
-        s.append((t, q))
+    def _add(self, j: int, t: int, q: float) -> bool:
+        """Append to joint ``j``'s series (False: not finite, or not after its last)."""
+        ts, qs = self._t[j], self._q[j]
+        if not math.isfinite(q) or (ts and t <= ts[-1]):
+            return False  # the guard counts what the complete samples carry
+        if ts:
+            q = q - 2.0 * math.pi * round((q - qs[-1]) / (2.0 * math.pi))  # unwrap on its own
+            self._intervals[j].append(t - ts[-1])
+        ts.append(t)
+        qs.append(q)
+        self._newest = max(self._newest, t)
+        return True
 
-    def _emit(self) -> tuple[IntArray, FloatArray]:
+    def finish(self) -> tuple[IntArray, FloatArray]:
+        """The instants still waiting (end of the input): a joint with nothing after one is
+        a hole there."""
+        return self._emit(final=True)
+
+    def _limit(self, j: int) -> float:
+        """The longest interval joint ``j``'s samples may bracket an instant over [ns]."""
+        iv = self._intervals[j]
+        return MAX_BRACKET_PERIODS * float(np.median(iv)) if iv else math.inf
+
+    def _waits(self, j: int, t0: int) -> bool:
+        """Joint ``j`` has nothing at or after ``t0`` yet, and may still bracket it: its
+        next sample comes after the newest stamp seen (messages in stamp order), so not once
+        that is beyond its limit from its last sample."""
+        ts = self._t[j]
+        return not ts or (ts[-1] < t0 and self._newest - ts[-1] <= self._limit(j))
+
+    def _emit(self, final: bool = False) -> tuple[IntArray, FloatArray]:
         out_t: list[int] = []
         out_q: list[list[float]] = []
         while self._instants:
             t0 = self._instants[0]
-            if any(not s or s[-1][0] < t0 for s in self._series):
-                break  # a joint has nothing at or after this instant yet
+            if not final and any(self._waits(j, t0) for j in range(len(self.joint_names))):
+                break
             self._instants.popleft()
             row = [self._at(j, t0) for j in range(len(self.joint_names))]
-            if any(v is None for v in row):
+            if self.hole is None and any(v is None for v in row):
                 self.dropped_instants += 1
                 continue
             out_t.append(t0)
-            out_q.append([float(v) for v in row if v is not None])
+            fill = math.nan if self.hole is None else self.hole  # (None: dropped above)
+            out_q.append([fill if v is None else v for v in row])
         self._prune()
         if not out_t:
             return np.zeros(0, np.int64), np.zeros((0, len(self.joint_names)))
@@ -103,30 +129,29 @@ class JointMerger:
         """Joint ``j`` at ``t0``: its own sample there, or the quadratic through the two
         around it and the one before (the straight line when there is none before); None
         across a hole."""
-        s = self._series[j]
-        ts = [x[0] for x in s]
-        i = int(np.searchsorted(ts, t0, side='left'))  # first sample at or after t0
-        if ts[i] == t0:
-            return s[i][1]
-        if i == 0:
-            return None  # nothing before the instant
-        (ta, qa), (tb, qb) = s[i - 1], s[i]
-        iv = self._intervals[j]
-        if iv and tb - ta > MAX_BRACKET_PERIODS * float(np.median(iv)):
+        ts, qs = self._t[j], self._q[j]
+        i = bisect.bisect_left(ts, t0)  # first sample at or after t0
+        if i < len(ts) and ts[i] == t0:
+            return qs[i]
+        if i == 0 or i == len(ts):
+            return None  # nothing before the instant, or nothing after it
+        ta, tb, qa, qb = ts[i - 1], ts[i], qs[i - 1], qs[i]
+        if tb - ta > self._limit(j):
             return None
-        la, lb = (tb - t0) / (tb - ta), (t0 - ta) / (tb - ta)
-        q = la * qa + lb * qb
+        q = ((tb - t0) * qa + (t0 - ta) * qb) / (tb - ta)
         if i >= 2:
-            tp, qp = s[i - 2]
+            tp, qp = ts[i - 2], qs[i - 2]
             # Newton's form: the line plus the second divided difference times (t0-ta)(t0-tb)
             d2 = ((qb - qa) / (tb - ta) - (qa - qp) / (ta - tp)) / (tb - tp)
             q += d2 * (t0 - ta) * (t0 - tb)
         return q
 
     def _prune(self) -> None:
-        """Keep, per joint, the two samples before the oldest pending instant (or the newest
-        two when none is pending) and everything after."""
-        for s in self._series:
-            keep_from = self._instants[0] if self._instants else (s[-1][0] if s else 0)
-            while len(s) > 3 and s[2][0] < keep_from:
-                s.popleft()
+        """Keep, per joint, the two samples before the oldest pending instant (the newest
+        three when none is pending) and everything after."""
+        for ts, qs in zip(self._t, self._q, strict=True):
+            keep_from = self._instants[0] if self._instants else (ts[-1] if ts else 0)
+            cut = max(0, min(bisect.bisect_left(ts, keep_from) - 2, len(ts) - 3))
+            if cut > 64:  # in steps: a list's front is deleted at the cost of its length
+                del ts[:cut]
+                del qs[:cut]
