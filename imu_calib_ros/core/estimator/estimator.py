@@ -215,7 +215,7 @@ class CalibrationEstimator:
         """Restart the navigation after a backward time jump (a looping bag, ``use_sim_time``).
 
         Drops the navigation states, the filter's navigation block and every buffered IMU and
-        joint sample, and resets the input guard's stamp memory (the earlier stamps that now
+        joint sample (those waiting to be merged too), and resets the input guard's stamp memory (the earlier stamps that now
         come are accepted; its rejection counters are kept). The calibration states and their
         covariance block are kept, as after a long gap (``_on_gap``, policy
         'reinitialise'), and the filter re-aligns at the next stationary window.
@@ -225,6 +225,7 @@ class CalibrationEstimator:
         self._joints.clear()
         self._t_last_ns = None
         self._guard.reset_stamps()
+        self._merger = None  # its series hold the stamps before the jump
         self.counters['navigation_resets'] = self.counters.get('navigation_resets', 0) + 1
 
     def configure_guard(self, guard_config: GuardConfig) -> None:
