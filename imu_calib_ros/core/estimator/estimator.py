@@ -215,10 +215,11 @@ class CalibrationEstimator:
         """Restart the navigation after a backward time jump (a looping bag, ``use_sim_time``).
 
         Drops the navigation states, the filter's navigation block and every buffered IMU and
-        joint sample (those waiting to be merged too), and resets the input guard's stamp memory (the earlier stamps that now
-        come are accepted; its rejection counters are kept). The calibration states and their
-        covariance block are kept, as after a long gap (``_on_gap``, policy
-        'reinitialise'), and the filter re-aligns at the next stationary window.
+        joint sample (those waiting to be merged too), and resets the input guard's stamp
+        memory (the earlier stamps that now come are accepted; its rejection counters are
+        kept). The calibration states and their covariance block are kept, as after a long
+        gap (``_on_gap``, policy 'reinitialise'), and the filter re-aligns at the next
+        stationary window.
         """
         self._drop_navigation()
         self._imu = ImuBuffer()
