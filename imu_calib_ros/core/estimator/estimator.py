@@ -786,7 +786,8 @@ class CalibrationEstimator:
                                self._nominal_dt, B, n, self.layout,
                                self.fixture.site.omega_ie_enu, self.fixture.concurrent,
                                self._process_noise.white[1] / math.sqrt(self._nominal_dt),
-                               ahead_repeated, self.config.imu_sample_type == 'point')
+                               ahead_repeated, self.config.imu_sample_type == 'point',
+                               self._rho)
 
     def _record_history(self, force: bool = False) -> None:
         """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""
