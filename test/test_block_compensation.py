@@ -199,3 +199,33 @@ def test_propagate_block_passes_the_lever_arm_to_the_table_regressor() -> None:
     assert np.array_equal(rows[0][:, :, g], rows[1][:, :, g])
     change = np.abs(rows[0][:, :, a] - rows[1][:, :, a]).max()
     assert change > 1e-3 * np.abs(rows[1][:, :, a]).max()
+
+
+def test_chunk_end_rates_are_exact_for_a_rate_quadratic_in_time() -> None:
+    """The lever arm's velocity takes the rate at each chunk-end instant: from the interval
+    means either side and the one before, exact for ``omega = a + b t + c t^2`` (the mean of
+    the two either side is ``c dt^2 / 3`` off: 5e-5 rad/s in Kozlov's 90 deg, 5 s oscillations
+    at 100 Hz, 1.6e-5 m/s with an IMU 31 cm from the axes, 16 velocity sigmas)."""
+    from imu_calib_ros.core.earth import Site
+    from imu_calib_ros.core.estimator import error_model as em
+    from imu_calib_ros.core.estimator.propagation import omega_dot_half_span, propagate_block
+    from imu_calib_ros.core.strapdown import Strapdown
+    site = Site(45.0, 0.0)
+    dt, n, B = 0.01, 10, 5
+    h = omega_dot_half_span(dt)
+    N = B * n + h
+    t = np.arange(N + 1) * dt  # interval k is (t[k], t[k+1]]
+    coef = np.array([[0.1, 2.0, -3.0], [0.0, -1.0, 5.0], [0.3, 0.5, 1.5]])  # a, b, c per axis
+    F = np.stack([a * t + b * t ** 2 / 2 + c * t ** 3 / 3 for a, b, c in coef], axis=1)
+    w = np.diff(F, axis=0) / dt  # exact interval means
+    f = np.broadcast_to([0.0, 0.0, site.gravity], (N, 3))
+    stamps = (t[1:] * 1e9).round().astype(np.int64)
+    blk = propagate_block(Strapdown(site, np.eye(3)), SensorErrors.from_vector(np.zeros(45)),
+                          0.0, None, stamps, w, f, dt, B, n,
+                          em.StateLayout.build(('gyro_bias',)), site.omega_ie_enu, table=True)
+    t_end = t[1:][blk.ends]
+    truth = np.stack([a + b * t_end + c * t_end ** 2 for a, b, c in coef], axis=1)
+    # from the second chunk on (the first block's history rows are copies of its first sample)
+    np.testing.assert_allclose(blk.omega_ib_end_rad_s[1:], truth[1:], rtol=0, atol=1e-12)
+    two = 0.5 * (w[blk.ends] + w[blk.ends + 1])
+    np.testing.assert_allclose(two - truth, coef[:, 2] * dt ** 2 / 3 + 0 * truth, rtol=1e-6)
