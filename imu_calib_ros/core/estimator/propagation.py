@@ -347,7 +347,7 @@ def corner_variance(ff: FloatArray, R_enu_imu: FloatArray, dt: FloatArray, h: in
 
 
 def table_specific_force(R_enu_imu: FloatArray, f_enu_m_s2: FloatArray,
-                         centripetal_imu: FloatArray | None = None) -> FloatArray:
+                         lever_imu: FloatArray | None = None) -> FloatArray:
     """The specific-force regressor of the sensor Jacobians on a table: the mean over the
     block of the navigation-frame specific force ``f_enu (N, 3)``, in each sample's IMU frame
     (``R_enu_imu (N, 3, 3)``), ``(N, 3)``.
@@ -364,18 +364,19 @@ def table_specific_force(R_enu_imu: FloatArray, f_enu_m_s2: FloatArray,
     Jacobians use it, the navigation the samples. A general chain's arm accelerates the IMU
     by more: its Jacobians keep the samples.
 
-    ``centripetal_imu (N, 3)``: the reference point's centripetal acceleration
-    ``omega x (omega x rho)`` in each sample's IMU frame, constant in a steady turn where
-    its navigation-frame direction turns with the table (the block mean loses it): taken
-    out of the mean and added per sample (session 20: an IMU 31 cm from the axes, turns at
-    up to 1 rad/s, a navigation unit's accelerometer x scale 9.6 ppm off, 3.7 sigma; 7.1 ppm
-    with it, 4.1 ppm with the IMU at the axes). The tangential ``omega_dot x rho`` is left
-    in the mean: it moved that scale by 0.1 ppm, and its rate differences share their noise
-    with the chunk-end rates of the lever arm's velocity (errors in variables)."""
-    if centripetal_imu is None:
+    ``lever_imu (N, 3)``: the reference point's acceleration about the axes,
+    ``omega_dot x rho + omega x (omega x rho)``, in each sample's IMU frame: its
+    navigation-frame direction turns with the table (the block mean loses it), so it is
+    taken out of the mean and added per sample (session 20). An IMU 31 cm from the axes,
+    turns at up to 1 rad/s: a navigation unit's accelerometer x scale 9.6 ppm off (3.7
+    sigma), 7.1 ppm with the centripetal part, 4.1 ppm at the axes. Kozlov's oscillations
+    (2.5 rad/s^2) with the IMU 18 cm off: without the tangential part a tactical unit's
+    poorly excited accelerometer scale passed its share to the size effect (5.6 sigma off),
+    a navigation unit 5 cm off was refused; with it both are within 3 sigma."""
+    if lever_imu is None:
         return np.einsum('nji,j->ni', R_enu_imu, f_enu_m_s2.mean(axis=0))
-    rest = f_enu_m_s2 - np.einsum('nij,nj->ni', R_enu_imu, centripetal_imu)
-    return np.einsum('nji,j->ni', R_enu_imu, rest.mean(axis=0)) + centripetal_imu
+    rest = f_enu_m_s2 - np.einsum('nij,nj->ni', R_enu_imu, lever_imu)
+    return np.einsum('nji,j->ni', R_enu_imu, rest.mean(axis=0)) + lever_imu
 
 
 def _instant_rates(w_c: FloatArray, w_rows: FloatArray | None, ends: NDArray[np.intp], h: int,
@@ -439,7 +440,7 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         The samples are trapezoid means of declared point samples (:func:`corner_variance`).
     lever_arm_imu_m :
         The reference point from the axes' common point, IMU frame (a table's Jacobians
-        take its centripetal acceleration, :func:`table_specific_force`); None: none.
+        take its acceleration about the axes, :func:`table_specific_force`); None: none.
     """
     m = B * n
     nom = nominal_dt_s
@@ -501,10 +502,10 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     # is the block's mean navigation-frame specific force in each sample's IMU frame
     # (:func:`table_specific_force`), not the sample itself
     if table:
-        cen = None  # the reference point's centripetal acceleration (IMU frame)
+        acc = None  # the reference point's acceleration about the axes (IMU frame)
         if lever_arm_imu_m is not None and np.any(lever_arm_imu_m):
-            cen = np.cross(w_s, np.cross(w_s, lever_arm_imu_m))
-        f_j = table_specific_force(R_mid, out.f_enu_m_s2, cen)
+            acc = np.cross(w_s, np.cross(w_s, lever_arm_imu_m)) + np.cross(wd, lever_arm_imu_m)
+        f_j = table_specific_force(R_mid, out.f_enu_m_s2, acc)
     else:
         f_j = f_c[:m]
     Mg = em.gyro_jacobian(w_s, f_j)
