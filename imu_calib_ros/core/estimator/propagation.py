@@ -7,7 +7,8 @@ vectorised:
 1. intervals from the stamps; a gap (> 1.5 nominal periods) counts as one nominal period
    and resets the navigator's coning/sculling memory;
 2. compensate the raw samples with the current estimate (:class:`BlockCompensation`: the
-   fixed point of ``sensor_model.compensate`` in matrix form), the size effect with
+   fixed point of ``sensor_model.compensate`` in matrix form, the asymmetry and quadratic
+   terms of :class:`RowWindow` means against noise rectification), the size effect with
    ``omega_dot`` from central differences of neighbouring compensated mean rates (Kozlov &
    Kapralov eq. 1; METHODS.md "cuts across"), the accelerometer time offset with the same
    differences of the specific force;
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +35,7 @@ from .error_model import StateLayout
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+Window = Callable[[FloatArray], FloatArray]  # the nonlinear terms' argument (RowWindow)
 
 
 @dataclass(frozen=True)
@@ -157,7 +159,7 @@ class BlockCompensation:
                              [r[2, 1], -r[2, 0], 0.0]]))
 
     def rates(self, w_raw: FloatArray, f_raw: FloatArray,
-              window: Any = RowWindow.none) -> FloatArray:
+              window: Window = RowWindow.none) -> FloatArray:
         """Compensated rates ``(3, N)`` of raw ``(N, 3)`` samples with ``omega_dot = 0``."""
         wm = w_raw.T - self.bg
         if self.G is None:
@@ -165,7 +167,7 @@ class BlockCompensation:
         return self._coupled(wm, f_raw.T - self.ba, None, window)[0]
 
     def samples(self, w_raw: FloatArray, f_raw: FloatArray, omega_dot: FloatArray,
-                rates: FloatArray, window: Any = RowWindow.none
+                rates: FloatArray, window: Window = RowWindow.none
                 ) -> tuple[FloatArray, FloatArray]:
         """Compensated ``(3, N)`` rates and specific forces with ``omega_dot (3, N)``;
         ``rates``: :meth:`rates` of the same samples and window (used as they are when
@@ -178,14 +180,14 @@ class BlockCompensation:
         return self._coupled(w_raw.T - self.bg, am, omega_dot, window)
 
     def _gyro_step(self, wm: FloatArray, w: FloatArray, f: FloatArray | None,
-                   window: Any) -> FloatArray:
+                   window: Window) -> FloatArray:
         u = wm - self.ag * np.abs(window(w))
         if self.G is not None and f is not None:
             u = u - self.G @ f
         return self.ig @ u
 
     def _accel_step(self, am: FloatArray, w: FloatArray, f: FloatArray,
-                    window: Any) -> FloatArray:
+                    window: Window) -> FloatArray:
         fw = window(f)
         v = am - (self.aa * np.abs(fw) + self.qa * fw * fw)
         if self.r is not None:
@@ -205,15 +207,15 @@ class BlockCompensation:
             if stop(change):
                 return x
 
-    def _rates_alone(self, wm: FloatArray, window: Any) -> FloatArray:
+    def _rates_alone(self, wm: FloatArray, window: Window) -> FloatArray:
         return self._iterate(self.ig @ wm, lambda w: self._gyro_step(wm, w, None, window),
                              1e-12)
 
-    def _forces_alone(self, am: FloatArray, w: FloatArray, window: Any) -> FloatArray:
+    def _forces_alone(self, am: FloatArray, w: FloatArray, window: Window) -> FloatArray:
         return self._iterate(self.ia @ am, lambda f: self._accel_step(am, w, f, window), 1e-9)
 
     def _coupled(self, wm: FloatArray, am: FloatArray, omega_dot: FloatArray | None,
-                 window: Any) -> tuple[FloatArray, FloatArray]:
+                 window: Window) -> tuple[FloatArray, FloatArray]:
         """Both (``omega_dot`` already in ``am``; None: zero)."""
         w, f = self.ig @ wm, self.ia @ am
         w_scale = np.maximum(np.abs(w).max(axis=0), 1e-12)
