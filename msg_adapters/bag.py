@@ -714,16 +714,21 @@ def _merge_joint_sets(parts: list[JointBatch]) -> JointBatch:
     """One batch from joint states that carry different sets of joints (one message per
     axis; another publisher's joints on the same topic), as the estimator merges them
     (:class:`~imu_calib_ros.core.joint_merge.JointMerger`): at the stamps of the set sent
-    most often (its first joint), every joint by its own series. A joint that is a hole at
-    most instants is left out, then instants with a hole are; positions only."""
+    over the longest time (then: most often; its first joint), every joint by its own
+    series. A joint that is a hole at most instants is left out, then instants with a hole
+    are; positions only."""
     from imu_calib_ros.core.joint_merge import JointMerger
     names: list[str] = []
-    rows: dict[tuple[str, ...], int] = {}
+    span: dict[tuple[str, ...], list[int]] = {}  # first stamp, last stamp, rows
     for b in parts:
         names += [n for n in b.names if n not in names]
+        if not len(b):
+            continue
         key = tuple(sorted(b.names))
-        rows[key] = rows.get(key, 0) + len(b)
-    main = max(rows, key=lambda k: rows[k])
+        a = span.setdefault(key, [int(b.stamps_ns[0]), int(b.stamps_ns[-1]), 0])
+        a[0], a[1] = min(a[0], int(b.stamps_ns[0])), max(a[1], int(b.stamps_ns[-1]))
+        a[2] += len(b)
+    main = max(span, key=lambda k: (span[k][1] - span[k][0], span[k][2]))
     first = next(b.names[0] for b in parts if tuple(sorted(b.names)) == main)
     merger = JointMerger(tuple(names), reference=names.index(first), hole=math.nan)
     out = [merger.push(b.stamps_ns, b.names, b.positions_rad) for b in parts]

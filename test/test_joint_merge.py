@@ -99,14 +99,15 @@ def test_a_paused_axis_leaves_a_hole() -> None:
 
 
 def test_an_axis_that_stops_holds_nothing_back() -> None:
-    """The middle axis stops at 1 s for good: the instants after its limit are decided as
-    they come (holes), not held until the end."""
+    """The middle axis stops at 1 s for good: the instants after its limit are decided half
+    a second later (holes), not held until the end."""
     msgs = [m for m in _per_axis((100.0,) * 3, (0.0, 0.002, 0.004))
             if not (m[1] == 'middle' and m[0] > 1.0e9)]
     merger = JointMerger(NAMES, hole=math.nan)
     t, q = _push_all(msgs, merger)
-    assert len(merger._instants) <= 3  # what waits for the newest stamps only
-    assert t[-1] > 3.9e9
+    assert len(merger._instants) <= 51  # what waits for the newest half second only
+    assert max(len(x) for x in merger._t) < 200  # the series stay bounded
+    assert t[-1] > 3.4e9
     hole = np.isnan(q[:, 1:])  # (the first instant: nothing before it on the others)
     assert not hole[(t > 0) & (t < 1.0e9)].any()
     assert hole[t > 1.0e9 + MAX_BRACKET_PERIODS * 1e7, 0].all()
@@ -133,17 +134,67 @@ def test_batches_are_single_pushes() -> None:
 def test_other_joints_and_messages_without_fixture_joints_are_ignored() -> None:
     merger = JointMerger(NAMES)
     assert len(merger.push([1], ('gripper',), [[0.3]])[0]) == 0
-    assert merger.reference is None
+    assert not merger.seen
     merger.push([2], ('gripper', 'inner'), [[0.3, 0.1]])
-    assert merger.reference == 2 and merger.seen == {'inner'}
+    assert merger.reference == 0 and merger.seen == {'inner'}  # the outer joint's stamps
+
+
+def test_axes_arriving_out_of_step_as_live_publishers_do() -> None:
+    """Live, each axis's publisher delivers in its own order with its own delay: the middle
+    axis 30 ms behind the others, the inner one with delays of 3 ms on average (exponential)
+    at 1 kHz. Every instant is merged (the same as in stamp order), whatever arrives first."""
+    rng = np.random.default_rng(9)
+    msgs = _per_axis((1000.0, 1000.0, 1000.0), (0.0, 0.0002, 0.0004), T=2.0)
+    delay = {'outer': lambda: 0.0, 'middle': lambda: 0.03,
+             'inner': lambda: float(rng.exponential(0.003))}
+    arrival = []
+    for t, name, q in msgs:  # each publisher keeps its own order
+        arrival.append((t * 1e-9 + delay[name](), t, name, q))
+    last: dict[str, float] = {}
+    for i, (a, t, name, q) in enumerate(arrival):
+        a = max(a, last.get(name, -1.0))
+        last[name] = a
+        arrival[i] = (a, t, name, q)
+    live = [(t, name, q) for _, t, name, q in sorted(arrival, key=lambda x: x[0])]
+    t1, q1 = _push_all(msgs, JointMerger(NAMES))
+    t2, q2 = _push_all(live, JointMerger(NAMES))
+    assert len(t2) >= len(t1) - 2 and len(t1) > 1990
+    common, i1, i2 = np.intersect1d(t1, t2, return_indices=True)
+    assert len(common) >= len(t1) - 2
+    np.testing.assert_allclose(q2[i2], q1[i1], rtol=0, atol=1e-12)
+
+
+def test_a_joint_that_never_comes_holds_nothing_and_keeps_nothing() -> None:
+    """Outer and middle at 100 Hz for 100 s, inner never (or once): nothing is merged (but
+    the one reading inner came with), and what the merger keeps stays within half a second
+    of stamps."""
+    for once in (False, True):
+        merger = JointMerger(NAMES)
+        merged = 0
+        for k in range(10_000):
+            t = 1_000_000_000 + k * 10_000_000
+            if once and k == 5:
+                merger.push([t], ('inner',), [[0.0]])
+            merged += len(merger.push([t], ('outer', 'middle'), [[0.1, 0.2]])[0])
+        assert merged == int(once)
+        assert len(merger._instants) <= 51 and max(len(x) for x in merger._t) < 200
+
+
+def test_partial_samples_rejected_are_counted() -> None:
+    merger = JointMerger(NAMES)
+    merger.push([10, 20, 20, 15], ('middle',), [[0.1], [0.2], [0.3], [0.4]])
+    merger.push([30], ('inner',), [[math.nan]])
+    assert merger.rejected == {'joint_non_finite': 1, 'joint_duplicate_stamp': 1,
+                               'joint_out_of_order': 1}
 
 
 # ------------------------------------------------------------------------ the plain command
 def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states',
-                    other_at: tuple[int, ...] = ()) -> int:
+                    other_at: tuple[int, ...] = (), arm_until: int = 0) -> int:
     """Rewrite a bag with each JointState as one message per joint (same stamp); with
     ``other_at``, no split, but another publisher's joint ``gripper`` before the joint states
-    of those indices."""
+    of those indices; with ``arm_until``, no split, but a six-joint arm's states at five
+    times the table's rate before its first ``arm_until`` joint states."""
     from rosbags.highlevel import AnyReader
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -160,6 +211,21 @@ def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states',
                 continue
             msg = r.deserialize(raw, c.msgtype)
             k_msg += 1
+            if arm_until:
+                if k_msg < arm_until:
+                    t0 = msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec
+                    for i in range(5):
+                        ti = t0 - 10_000_000 + 2_000_000 * i
+                        hdr = type(msg.header)(stamp=type(msg.header.stamp)(
+                            sec=ti // 10 ** 9, nanosec=ti % 10 ** 9), frame_id='')
+                        arm = JS(header=hdr, name=[f'arm_{j}' for j in range(6)],
+                                 position=np.full(6, 0.1 * i), velocity=np.zeros(0),
+                                 effort=np.zeros(0))
+                        w.write(conns[c.topic], t - 10_000_000 + 2_000_000 * i,
+                                ts.serialize_cdr(arm, c.msgtype))
+                w.write(conns[c.topic], t, raw)
+                n += 1
+                continue
             if other_at:
                 if k_msg in other_at:
                     other = JS(header=msg.header, name=['gripper'], position=np.array([0.02]),
@@ -178,9 +244,10 @@ def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states',
 
 
 def test_plain_command_on_a_bag_split_per_axis(tmp_path: Path) -> None:
-    """The same calibration as the bag it was split from, to 1e-3 of each sigma (the merged
-    samples are the original ones; they reach the estimator in other batches: 1e-5 sigma
-    apart), where the old code exited 2 naming joints the bag has."""
+    """The same calibration as the bag it was split from, to 1e-2 of each sigma (the merged
+    samples are the original ones, bit for bit; they reach the estimator in other batches
+    beside the IMU's: 1e-5 to 1e-3 sigma apart), where the old code exited 2 naming joints
+    the bag has."""
     from imu_calib_ros.cli import main
     from imu_calib_ros.testing.world_cases import make_case
     bag, truth = make_case(tmp_path, unit='tactical', size=1.0, mount_deg=3.0, seed=11)
@@ -199,13 +266,14 @@ def test_plain_command_on_a_bag_split_per_axis(tmp_path: Path) -> None:
         for key, v in calibs[0][sensor].items():
             sig = np.asarray(calibs[0]['sigma'][sensor][key], float)
             d = np.abs(np.asarray(calibs[1][sensor][key], float) - np.asarray(v, float))
-            assert np.all(d <= 1e-3 * np.maximum(sig, 1e-30)), (sensor, key)
+            assert np.all(d <= 1e-2 * np.maximum(sig, 1e-30)), (sensor, key)
 
 
 def test_read_bag_of_a_split_bag_and_of_another_publisher(tmp_path: Path) -> None:
     """``read_bag`` (``imu-calib noise``, ``report``, the analytic methods) raised "joint names
-    change" on both; now the split bag reads as the bag it came from, and a publisher of
-    another joint now and then is left out."""
+    change" on these; now the split bag reads as the bag it came from, a publisher of
+    another joint now and then is left out, and so is an arm's six joints sent five times as
+    often as the table's for the first quarter of the bag (the table's stamps span longer)."""
     from msg_adapters.bag import read_bag
 
     from imu_calib_ros.cli import main
@@ -213,7 +281,8 @@ def test_read_bag_of_a_split_bag_and_of_another_publisher(tmp_path: Path) -> Non
     bag, _ = make_case(tmp_path, unit='nav', size=1.0, seed=12, plan='static_6pos')
     _, ref = read_bag(bag)
     q_ref = np.unwrap(ref.positions_rad[:, [ref.names.index(n) for n in NAMES]], axis=0)
-    for kind, kw in (('split', {}), ('other', {'other_at': (5, 900, 4000)})):
+    for kind, kw in (('split', {}), ('other', {'other_at': (5, 900, 4000)}),
+                     ('arm', {'arm_until': len(ref) // 4})):
         out = tmp_path / kind
         _split_per_axis(Path(bag), out, **kw)
         _, j = read_bag(out)

@@ -499,6 +499,13 @@ class InputGuard:
         self._log()
         return empty
 
+    def count_rejected(self, name: str, count: int) -> None:
+        """Count ``count`` samples rejected for reason ``name`` elsewhere (joint states merged
+        from one axis at a time: :class:`~.joint_merge.JointMerger`)."""
+        if count:
+            self.rejected[name] += count
+            self._log()
+
     def _reject_joint(self, name: str) -> None:
         self.rejected[name] += 1
         self._log()

@@ -5,17 +5,17 @@ subset: a table whose axes have their own drivers publishes one message per axis
 ``joint_states`` (robot_state_publisher and joint_state_publisher's ``source_list`` take
 such partial messages). The estimator wants every fixture joint at one instant. Here each
 joint keeps its own series; the output instants are the stamps of one *reference* joint
-(the first fixture joint in the first partial message), and every other joint's position
+(the outermost fixture joint), and every other joint's position
 there is interpolated in its own series by the quadratic through its two samples around the
 instant and the one before them (exact where the stamps agree, as when one driver publishes
 the axes as separate messages of one reading; a 1 rad/s^2 turn with axes read 5 ms apart at
 100 Hz: ~1 urad, against 12 urad for the straight line). An instant waits until every joint
-has a sample at or after it; one that a joint's series does not bracket within
-:data:`MAX_BRACKET_PERIODS` of its own intervals is dropped (a hole stays a hole), and what
-no later sample brackets is dropped at the end. Positions are unwrapped per joint (CONTRACT
-1: wrapped to (-pi, pi] or continuous). Hand-written: a streaming per-name resampler with
-holes is not what ``scipy.interpolate`` offers.
-"""
+has a sample at or after it, at most until a stamp :data:`MERGE_WAIT_NS` later has come
+(live, the axes' publishers arrive out of step); one that a joint's series does not bracket
+within :data:`MAX_BRACKET_PERIODS` of its own intervals is dropped (a hole stays a hole).
+Positions are unwrapped per joint (CONTRACT 1: wrapped to (-pi, pi] or continuous).
+Hand-written: a streaming per-name resampler with holes is not what ``scipy.interpolate``
+offers."""
 from __future__ import annotations
 
 import bisect
@@ -33,6 +33,11 @@ IntArray = NDArray[np.int64]
 #: many of that joint's median interval (its driver paused: interpolating across would hide a
 #: hole from the joint buffer, which bridges none)
 MAX_BRACKET_PERIODS = 2.5
+#: how far [ns] the newest stamp of any joint may run ahead of an instant before it is decided
+#: without the joints that have nothing after it yet (a hole there): live, the axes'
+#: publishers arrive out of step by their own delays; an axis that stopped, or never came,
+#: holds nothing back for longer (and its series and the instants waiting stay bounded)
+MERGE_WAIT_NS = 500_000_000
 _HISTORY = 16  # intervals per joint for its median
 
 
@@ -41,21 +46,25 @@ class JointMerger:
 
     def __init__(self, joint_names: tuple[str, ...] | list[str], reference: int | None = None,
                  hole: float | None = None) -> None:
-        """``reference``: the joint (index) whose stamps are the output instants (default:
-        the first fixture joint of the first partial sample); ``hole``: the value of a joint
-        its series does not bracket at an instant (default None: the instant is dropped)."""
+        """``reference``: the joint (index) whose stamps are the output instants (default 0,
+        the outermost fixture joint: the same whatever order the axes arrive in); ``hole``:
+        the value of a joint its series does not bracket at an instant (default None: the
+        instant is dropped)."""
         self.joint_names = tuple(joint_names)
         self._index = {n: i for i, n in enumerate(self.joint_names)}
         n = len(self.joint_names)
         self._t: list[list[int]] = [[] for _ in range(n)]  # each joint's stamps
         self._q: list[list[float]] = [[] for _ in range(n)]  # and unwrapped positions
         self._intervals: list[deque[int]] = [deque(maxlen=_HISTORY) for _ in range(n)]
-        self.reference = reference  # the joint whose stamps are the output instants
+        self.reference = 0 if reference is None else reference  # whose stamps are instants
         self.hole = hole
         self._instants: deque[int] = deque()
         self._newest = -(2 ** 63)  # newest stamp of any joint
         self.seen: set[str] = set()  # the merged joints that came
         self.dropped_instants = 0
+        #: samples of a joint left out, by the input guard's reasons (the guard never sees them)
+        self.rejected = {'joint_non_finite': 0, 'joint_duplicate_stamp': 0,
+                         'joint_out_of_order': 0}
 
     def push(self, stamps_ns: Any, names: tuple[str, ...] | list[str],
              positions_rad: Any) -> tuple[IntArray, FloatArray]:
@@ -67,8 +76,6 @@ class JointMerger:
         if not cols:
             return np.zeros(0, np.int64), np.zeros((0, len(self.joint_names)))
         self.seen.update(self.joint_names[j] for _, j in cols)
-        if self.reference is None:
-            self.reference = min(j for _, j in cols)
         for row, t in enumerate(t_all.tolist()):
             for k, j in cols:
                 if self._add(j, t, float(q_all[row, k])) and j == self.reference:
@@ -76,10 +83,13 @@ class JointMerger:
         return self._emit()
 
     def _add(self, j: int, t: int, q: float) -> bool:
-        """Append to joint ``j``'s series (False: not finite, or not after its last)."""
+        """Append to joint ``j``'s series (False: not finite, or not after its last; counted)."""
         ts, qs = self._t[j], self._q[j]
         if not math.isfinite(q) or (ts and t <= ts[-1]):
-            return False  # the guard counts what the complete samples carry
+            why = ('joint_non_finite' if not math.isfinite(q) else
+                   'joint_duplicate_stamp' if t == ts[-1] else 'joint_out_of_order')
+            self.rejected[why] += 1
+            return False
         if ts:
             q = q - 2.0 * math.pi * round((q - qs[-1]) / (2.0 * math.pi))  # unwrap on its own
             self._intervals[j].append(t - ts[-1])
@@ -98,19 +108,18 @@ class JointMerger:
         iv = self._intervals[j]
         return MAX_BRACKET_PERIODS * float(np.median(iv)) if iv else math.inf
 
-    def _waits(self, j: int, t0: int) -> bool:
-        """Joint ``j`` has nothing at or after ``t0`` yet, and may still bracket it: its
-        next sample comes after the newest stamp seen (messages in stamp order), so not once
-        that is beyond its limit from its last sample."""
-        ts = self._t[j]
-        return not ts or (ts[-1] < t0 and self._newest - ts[-1] <= self._limit(j))
+    def _waits(self, t0: int) -> bool:
+        """Some joint has nothing at or after ``t0`` yet, and the newest stamp is within
+        :data:`MERGE_WAIT_NS` of it."""
+        return self._newest - t0 <= MERGE_WAIT_NS and any(not ts or ts[-1] < t0
+                                                            for ts in self._t)
 
     def _emit(self, final: bool = False) -> tuple[IntArray, FloatArray]:
         out_t: list[int] = []
         out_q: list[list[float]] = []
         while self._instants:
             t0 = self._instants[0]
-            if not final and any(self._waits(j, t0) for j in range(len(self.joint_names))):
+            if not final and self._waits(t0):
                 break
             self._instants.popleft()
             row = [self._at(j, t0) for j in range(len(self.joint_names))]
@@ -147,10 +156,13 @@ class JointMerger:
         return q
 
     def _prune(self) -> None:
-        """Keep, per joint, the two samples before the oldest pending instant (the newest
-        three when none is pending) and everything after."""
+        """Keep, per joint, the two samples before the oldest pending instant or
+        :data:`MERGE_WAIT_NS` before the newest stamp (an instant still to come, the
+        reference's publisher behind the others'), whichever is earlier, and all after."""
+        keep_from = self._newest - MERGE_WAIT_NS
+        if self._instants:
+            keep_from = min(keep_from, self._instants[0])
         for ts, qs in zip(self._t, self._q, strict=True):
-            keep_from = self._instants[0] if self._instants else (ts[-1] if ts else 0)
             cut = max(0, min(bisect.bisect_left(ts, keep_from) - 2, len(ts) - 3))
             if cut > 64:  # in steps: a list's front is deleted at the cost of its length
                 del ts[:cut]

@@ -236,6 +236,7 @@ class CalibrationNode(Node):
         self._rate_mark: tuple[int, int, Any] = (0, 0, None)
         self._joint_ok = False
         self._last_joint_ns: int | None = None  # stamp of the last good joint state
+        self._joint_stamps: dict[str, int] = {}  # the last stamp of each fixture joint
         self._last_rx: Any = None  # rclpy Time of the last raw IMU message
         self._pub = self.create_publisher(Imu, 'imu/data_corrected',
                                           reliable_qos(cfg.queue_depth))
@@ -342,9 +343,13 @@ class CalibrationNode(Node):
         if not finite(sample.positions_rad):
             self._joint_rejected['non_finite'] += 1
             return
-        self._joint_ok = True
-        self._last_joint_ns = sample.stamp_ns
-        if self.joint_names[0] in sample.names:  # one axis per message: the outer's stamps
+        for name in sample.names:  # one axis per message: each fixture joint's own stamp
+            if name in self.joint_names:
+                self._joint_stamps[name] = sample.stamp_ns
+        if len(self._joint_stamps) == len(self.joint_names):  # every joint has come
+            self._joint_ok = True
+            self._last_joint_ns = min(self._joint_stamps.values())  # an axis that stops
+        if self.joint_names[0] in sample.names:  # the merge's instants: the outer's stamps
             self.counts['missing_joint'] += self._joint_gaps.push(sample.stamp_ns)
         self._pending_joints.append(sample)
 
@@ -356,6 +361,7 @@ class CalibrationNode(Node):
         self._clear_pending()
         self.stream.restart()
         self._last_joint_ns = None
+        self._joint_stamps = {}
         self._joint_gaps.reset()
         self.runner.command('reset_navigation')
         self.get_logger().warn(f'time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: '
@@ -420,6 +426,7 @@ class CalibrationNode(Node):
         self.joint_names = tuple(fixture.joint_names)
         self._joint_ok = False
         self._last_joint_ns = None
+        self._joint_stamps = {}
         self._good_seq = -1
         self.runner = EstimatorRunner(cfg.estimator_mode, (fixture, cfg.imu_grade, cfg.estimator),
                                       self.frame_id or cfg.frame_id or 'imu_link',
@@ -605,6 +612,9 @@ class CalibrationNode(Node):
                 (self.stream.last_ns - self.stream.first_ns) * 1e-9 > self.config.joint_timeout_s:
             msg = (f'no joint_states with the fixture joints [{expected}] after '
                    f'{self.config.joint_timeout_s:g} s of IMU data')
+            if self._joint_stamps:  # one axis per message, and some never came
+                never = ', '.join(n for n in self.joint_names if n not in self._joint_stamps)
+                msg += f' ({never} never came; {", ".join(self._joint_stamps)} did)'
             self.get_logger().error(msg, throttle_duration_sec=self.config.log_throttle_s)
             return DiagnosticStatus.ERROR, msg
         last_j, last_i = self._last_joint_ns, self.stream.last_ns
@@ -727,6 +737,7 @@ class CalibrationNode(Node):
         self._joint_rejected = {k: 0 for k in self._joint_rejected}
         self.stream.last_ns = None
         self._last_joint_ns = None
+        self._joint_stamps = {}
         self._joint_gaps.reset()
         self.compensation.reset()
         self._hand_over()

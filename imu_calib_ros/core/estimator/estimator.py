@@ -293,7 +293,11 @@ class CalibrationEstimator:
     def _push_partial(self, t: Any, names: tuple[str, ...], q: Any) -> None:
         if self._merger is None:
             self._merger = JointMerger(self._joint_names)
-        t_full, q_full = self._merger.push(t, names, q)
+        m = self._merger
+        before = dict(m.rejected)
+        t_full, q_full = m.push(t, names, q)
+        for reason, k in m.rejected.items():
+            self._guard.count_rejected(reason, k - before[reason])
         if len(t_full):
             self._accept_joints(t_full, self._joint_names, q_full)
         else:

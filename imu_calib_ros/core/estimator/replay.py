@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError
+from ..joint_merge import MERGE_WAIT_NS
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from .config import EstimatorConfig
 from .estimator import CalibrationEstimator, Estimate
@@ -285,10 +286,14 @@ def _check_usable(est: CalibrationEstimator, ledger: RunLedger, fixture: Fixture
         what = ('joint states lack the fixture joints ' + names if c['joint_missing_names']
                 else 'no joint states in the input')
         seen = est.partial_joints_seen
-        if seen:  # some fixture joints came (alone or with others), one never did
-            never = [n for n in fixture.joint_names if n not in seen]
+        never = [n for n in fixture.joint_names if n not in seen]
+        if seen and never:  # some fixture joints came (alone or with others), one never did
             what = (f'the joint states never carry the fixture joint{"s" * (len(never) > 1)} '
                     f'{", ".join(never)} (they carry {", ".join(seen)})')
+        elif seen:  # one axis per message, and they never met
+            what = ('the joint states carry the fixture joints in separate messages that '
+                    f'never overlap in time (each of {", ".join(seen)} within '
+                    f'{MERGE_WAIT_NS * 1e-9:g} s of the others)')
         raise InputError(f'{what}: check --joint-topic and the fixture file')
     if not est.is_running and est.counters['imu_processed'] == 0:
         gap = ledger.longest_joint_gap_s()
