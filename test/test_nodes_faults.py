@@ -221,6 +221,33 @@ def test_joint_states_stopping_mid_run_is_an_error(ros: Node, tmp_path: Path) ->
     assert 'joint_states stopped' in log, log
 
 
+def test_an_axis_that_never_comes_is_named(ros: Node, tmp_path: Path) -> None:
+    """Joint states one axis per message (merged by the estimator) with the inner axis never
+    sent: /diagnostics turns ERROR naming it. Before, any message with a fixture joint set
+    the node's joint state 'received' and nothing was said."""
+    proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0, 'joint_timeout_s': 0.5,
+                  'estimator_mode': 'thread'}, tmp_path)
+    w = Wiring(ros)
+    try:
+        assert w.wait_matched(), stop(proc)
+        time.sleep(1.0)
+        stream(w, 7_000_000_000, 100, 5_000_000, ['outer'])
+        stream(w, 7_500_000_000, 300, 5_000_000, ['middle'])
+
+        def named() -> bool:
+            s = last_status(w.diags)
+            return s is not None and 'inner never came' in s.message
+        assert spin_until(ros, named, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
+        status = last_status(w.diags)
+    finally:
+        log = stop(proc)
+        w.close()
+    from diagnostic_msgs.msg import DiagnosticStatus
+    assert status.level == DiagnosticStatus.ERROR, status
+    assert 'outer, middle did' in status.message, status.message
+    assert 'Traceback' not in log, log
+
+
 def test_bad_samples_never_published_counted_by_reason_and_joint_error(ros: Node,
                                                                        tmp_path: Path) -> None:
     """NaN/inf and a foreign frame_id: rejected, counted by reason in /diagnostics, one
