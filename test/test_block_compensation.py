@@ -229,3 +229,12 @@ def test_chunk_end_rates_are_exact_for_a_rate_quadratic_in_time() -> None:
     np.testing.assert_allclose(blk.omega_ib_end_rad_s[1:], truth[1:], rtol=0, atol=1e-12)
     two = 0.5 * (w[blk.ends] + w[blk.ends + 1])
     np.testing.assert_allclose(two - truth, coef[:, 2] * dt ** 2 / 3 + 0 * truth, rtol=1e-6)
+
+
+def test_lever_acceleration_is_the_cross_products() -> None:
+    from imu_calib_ros.core.estimator.propagation import lever_acceleration
+    rng = np.random.default_rng(10)
+    w, wd, rho = rng.normal(size=(50, 3)), rng.normal(size=(50, 3)), rng.normal(size=3)
+    np.testing.assert_allclose(lever_acceleration(w, wd, rho),
+                               np.cross(wd, rho) + np.cross(w, np.cross(w, rho)),
+                               rtol=0, atol=1e-13)
