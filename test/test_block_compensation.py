@@ -225,10 +225,17 @@ def test_chunk_end_rates_are_exact_for_a_rate_quadratic_in_time() -> None:
                           em.StateLayout.build(('gyro_bias',)), site.omega_ie_enu, table=True)
     t_end = t[1:][blk.ends]
     truth = np.stack([a + b * t_end + c * t_end ** 2 for a, b, c in coef], axis=1)
-    # from the second chunk on (the first block's history rows are copies of its first sample)
-    np.testing.assert_allclose(blk.omega_ib_end_rad_s[1:], truth[1:], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(blk.omega_ib_end_rad_s, truth, rtol=0, atol=1e-12)
     two = 0.5 * (w[blk.ends] + w[blk.ends + 1])
     np.testing.assert_allclose(two - truth, coef[:, 2] * dt ** 2 / 3 + 0 * truth, rtol=1e-6)
+    # a sample lost just before a chunk end: no interval before it, the mean of the two
+    gap = stamps.copy()
+    gap[blk.ends[2]:] += int(0.02e9)  # the interval ending at chunk 2's end is 30 ms long
+    blk2 = propagate_block(Strapdown(site, np.eye(3)), SensorErrors.from_vector(np.zeros(45)),
+                           0.0, None, gap, w, f, dt, B, n,
+                           em.StateLayout.build(('gyro_bias',)), site.omega_ie_enu, table=True)
+    np.testing.assert_allclose(blk2.omega_ib_end_rad_s[2], two[2], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(blk2.omega_ib_end_rad_s[3:], truth[3:], rtol=0, atol=1e-12)
 
 
 def test_lever_acceleration_is_the_cross_products() -> None:
