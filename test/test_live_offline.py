@@ -34,26 +34,33 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_node_on_a_world_bag_equals_replay(tmp_path: Path) -> None:
     from imu_calib_ros.testing.world_cases import make_case
     bag, truth = make_case(tmp_path, unit='nav', seed=0)  # demo_short, 185 s at 100 Hz
+    a, b, z, log = _live_and_replay(bag, bag, truth, tmp_path, (2.0, 1.0))
+    # measured 0 (same floats, same order); rounding of the bag's float64 only
+    assert z.max() < 1e-3, (z.max(), log[-2000:])
+    np.testing.assert_allclose(a.sigma.as_vector(), b.sigma.as_vector(), rtol=1e-6, atol=0)
+
+
+def _live_and_replay(played: Path, replayed: Path, truth: Any, tmp_path: Path,
+                     rates: tuple[float, ...]) -> tuple[Any, Any, np.ndarray, str]:
+    """The node's file for ``played`` and ``imu-calib replay`` of ``replayed``: (live,
+    offline, |live - offline| / sigma of the estimated values, the node's log). Every sample
+    must reach the estimator for the comparison to hold; on a busy 2-core machine (the
+    suite's other worker) even 3x lost ~6 % on the way (counted: 'partial'), so a partial
+    run is played once more at the next rate rather than compared."""
     off = tmp_path / 'offline.yaml'
-    r = subprocess.run([sys.executable, '-m', 'imu_calib_ros.cli', 'replay', str(bag),
+    r = subprocess.run([sys.executable, '-m', 'imu_calib_ros.cli', 'replay', str(replayed),
                         '--fixture', str(truth.fixture_path), '--output', str(off), '--force'],
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    # every sample must reach the estimator for the comparison to hold; on a busy 2-core
-    # machine (the suite's other worker) even 3x lost ~6 % on the way (counted: 'partial'),
-    # so a partial run is played once more at real time rather than compared
-    for rate in (2.0, 1.0):
-        live, log, account = _play(bag, truth, tmp_path, rate)
+    for rate in rates:
+        live, log, account = _play(played, truth, tmp_path, rate)
         if account['partial'] is False:
             break
     assert account['partial'] is False, account
     a, b = CalibrationResult.load(live), CalibrationResult.load(off)
     s = b.sigma.as_vector()
     on = s > 0
-    z = np.abs(a.errors.as_vector() - b.errors.as_vector())[on] / s[on]
-    # measured 0 (same floats, same order); rounding of the bag's float64 only
-    assert z.max() < 1e-3, (z.max(), log[-2000:])
-    np.testing.assert_allclose(a.sigma.as_vector(), s, rtol=1e-6, atol=0)
+    return a, b, np.abs(a.errors.as_vector() - b.errors.as_vector())[on] / s[on], log
 
 
 def _play(bag: Path, truth: Any, tmp_path: Path, rate: float) -> tuple[Path, str, dict]:
@@ -86,18 +93,5 @@ def test_node_takes_joint_states_one_axis_at_a_time(tmp_path: Path) -> None:
     bag, truth = make_case(tmp_path, unit='nav', seed=0)
     split = tmp_path / 'split'
     assert _split_per_axis(Path(bag), split) > 0
-    off = tmp_path / 'offline.yaml'
-    r = subprocess.run([sys.executable, '-m', 'imu_calib_ros.cli', 'replay', str(bag),
-                        '--fixture', str(truth.fixture_path), '--output', str(off), '--force'],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
-    for rate in (3.0, 1.0):  # see the test above: a partial run is played again, slower
-        live, log, account = _play(split, truth, tmp_path, rate)
-        if account['partial'] is False:
-            break
-    assert account['partial'] is False, account
-    a, b = CalibrationResult.load(live), CalibrationResult.load(off)
-    s = b.sigma.as_vector()
-    on = s > 0
-    z = np.abs(a.errors.as_vector() - b.errors.as_vector())[on] / s[on]
+    _, _, z, log = _live_and_replay(split, Path(bag), truth, tmp_path, (3.0, 1.0))
     assert z.max() < 1e-3, (z.max(), log[-2000:])

@@ -195,29 +195,38 @@ def test_samples_lost_upstream_are_counted(ros: Node, tmp_path: Path) -> None:
     assert 'Traceback' not in log, log
 
 
-def test_joint_states_stopping_mid_run_is_an_error(ros: Node, tmp_path: Path) -> None:
-    """Joint states for the first second, then IMU alone for 1.5 s: /diagnostics turns
-    ERROR naming the stop once the IMU stamps run joint_timeout_s (0.5 s) past the last
-    joint state. It stayed 'calibrating', OK, before."""
+def _joint_error(ros: Node, tmp_path: Path, joints: tuple[list[str] | None, ...],
+                 phrase: str) -> tuple[Any, str]:
+    """IMU samples at rest with the joint names ``joints[i]`` in run ``i`` (200, then 300
+    samples at 200 Hz; None: no joint states) into a node with a 0.5 s joint timeout, until
+    /diagnostics says ``phrase``: (that status, the node's log)."""
     proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0, 'joint_timeout_s': 0.5,
                   'estimator_mode': 'thread'}, tmp_path)
     w = Wiring(ros)
     try:
         assert w.wait_matched(), stop(proc)
         time.sleep(1.0)
-        stream(w, 7_000_000_000, 200, 5_000_000, JOINTS)
-        stream(w, 8_000_000_000, 300, 5_000_000, None)
+        stream(w, 7_000_000_000, 200, 5_000_000, joints[0])
+        stream(w, 8_000_000_000, 300, 5_000_000, joints[1])
 
-        def stopped() -> bool:
+        def said() -> bool:
             s = last_status(w.diags)
-            return s is not None and 'joint_states stopped' in s.message
-        assert spin_until(ros, stopped, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
+            return s is not None and phrase in s.message
+        assert spin_until(ros, said, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
         status = last_status(w.diags)
     finally:
         log = stop(proc)
         w.close()
     from diagnostic_msgs.msg import DiagnosticStatus
     assert status.level == DiagnosticStatus.ERROR, status
+    return status, log
+
+
+def test_joint_states_stopping_mid_run_is_an_error(ros: Node, tmp_path: Path) -> None:
+    """Joint states for the first second, then IMU alone for 1.5 s: /diagnostics turns
+    ERROR naming the stop once the IMU stamps run joint_timeout_s (0.5 s) past the last
+    joint state. It stayed 'calibrating', OK, before."""
+    _, log = _joint_error(ros, tmp_path, (JOINTS, None), 'joint_states stopped')
     assert 'joint_states stopped' in log, log
 
 
@@ -225,25 +234,7 @@ def test_an_axis_that_never_comes_is_named(ros: Node, tmp_path: Path) -> None:
     """Joint states one axis per message (merged by the estimator) with the inner axis never
     sent: /diagnostics turns ERROR naming it. Before, any message with a fixture joint set
     the node's joint state 'received' and nothing was said."""
-    proc = start({'frame_id': 'imu_link', 'diagnostics_rate_hz': 4.0, 'joint_timeout_s': 0.5,
-                  'estimator_mode': 'thread'}, tmp_path)
-    w = Wiring(ros)
-    try:
-        assert w.wait_matched(), stop(proc)
-        time.sleep(1.0)
-        stream(w, 7_000_000_000, 100, 5_000_000, ['outer'])
-        stream(w, 7_500_000_000, 300, 5_000_000, ['middle'])
-
-        def named() -> bool:
-            s = last_status(w.diags)
-            return s is not None and 'inner never came' in s.message
-        assert spin_until(ros, named, 30.0), w.diags[-1:] if w.diags else 'no diagnostics'
-        status = last_status(w.diags)
-    finally:
-        log = stop(proc)
-        w.close()
-    from diagnostic_msgs.msg import DiagnosticStatus
-    assert status.level == DiagnosticStatus.ERROR, status
+    status, log = _joint_error(ros, tmp_path, (['outer'], ['middle']), 'inner never came')
     assert 'outer, middle did' in status.message, status.message
     assert 'Traceback' not in log, log
 
