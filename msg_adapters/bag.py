@@ -686,8 +686,14 @@ def _concat_joints(parts: list[JointBatch], path: Path, topic: str) -> JointBatc
     if len(parts) == 1:
         return parts[0]
     names = parts[0].names
-    if any(set(b.names) != set(names) for b in parts):
-        return _merge_joint_sets(parts)
+    other = next((b for b in parts if set(b.names) != set(names)), None)
+    if other is not None:
+        merged = _merge_joint_sets(parts)
+        if not len(merged):
+            raise BagError(f'{path}: joint names on {topic!r} change at stamp '
+                           f'{int(other.stamps_ns[0])} ns: {list(other.names)} vs {list(names)}, '
+                           'and no instant has all of them')
+        return merged
     pos, vel = [], []
     any_vel = any(b.velocities_rad_s is not None for b in parts)
     for b in parts:

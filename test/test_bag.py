@@ -265,6 +265,8 @@ def test_chunked_read_equals_whole_read(tmp_path: Path, monkeypatch: pytest.Monk
 
 
 def test_changing_joint_set_is_an_error(tmp_path: Path) -> None:
+    """Sets of joint names that no instant merges into one sample (session 20 merges those
+    that do, ``test_joint_merge.py``): the change is named."""
     j1 = JointSample(1, ('x', 'y'), np.array([0.1, 0.2]))
     j2 = JointSample(2, ('x', 'z'), np.array([0.1, 0.2]))
     s = ImuSample(1, np.zeros(3), np.zeros(3), 'i')
