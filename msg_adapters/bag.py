@@ -686,21 +686,22 @@ def _concat_joints(parts: list[JointBatch], path: Path, topic: str) -> JointBatc
     if len(parts) == 1:
         return parts[0]
     names = parts[0].names
+
+    def change(b: JointBatch) -> str:
+        return (f'{path}: joint names on {topic!r} change at stamp {int(b.stamps_ns[0])} ns: '
+                f'{list(b.names)} vs {list(names)}')
     other = next((b for b in parts if set(b.names) != set(names)), None)
     if other is not None:
         merged = _merge_joint_sets(parts)
         if not len(merged):
-            raise BagError(f'{path}: joint names on {topic!r} change at stamp '
-                           f'{int(other.stamps_ns[0])} ns: {list(other.names)} vs {list(names)}, '
-                           'and no instant has all of them')
+            raise BagError(f'{change(other)}, and no instant has all of them')
         return merged
     pos, vel = [], []
     any_vel = any(b.velocities_rad_s is not None for b in parts)
     for b in parts:
         if b.names != names:
-            if sorted(b.names) != sorted(names):
-                raise BagError(f'{path}: joint names on {topic!r} change at stamp '
-                               f'{int(b.stamps_ns[0])} ns: {list(b.names)} vs {list(names)}')
+            if sorted(b.names) != sorted(names):  # the same names, one twice
+                raise BagError(change(b))
             order = [b.names.index(n) for n in names]
         else:
             order = list(range(len(names)))
