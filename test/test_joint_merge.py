@@ -190,8 +190,11 @@ def test_partial_samples_rejected_are_counted() -> None:
 
 # ------------------------------------------------------------------------ the plain command
 def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states',
-                    other_at: tuple[int, ...] = (), arm_until: int = 0) -> int:
+                    other_at: tuple[int, ...] = (), arm_until: int = 0,
+                    disjoint_of: int = 0) -> int:
     """Rewrite a bag with each JointState as one message per joint (same stamp); with
+    ``disjoint_of`` (the bag's count of joint states), joint k only in the k-th third of them
+    (the axes never meet); with
     ``other_at``, no split, but another publisher's joint ``gripper`` before the joint states
     of those indices; with ``arm_until``, no split, but a six-joint arm's states at five
     times the table's rate before its first ``arm_until`` joint states."""
@@ -235,6 +238,8 @@ def _split_per_axis(src: Path, dst: Path, topic: str = '/joint_states',
                 n += 1
                 continue
             for k, name in enumerate(msg.name):
+                if disjoint_of and k_msg * len(msg.name) // disjoint_of != k:
+                    continue
                 vel = msg.velocity[k:k + 1] if len(msg.velocity) else np.zeros(0)
                 part = JS(header=msg.header, name=[name], position=msg.position[k:k + 1],
                           velocity=vel, effort=np.zeros(0))
@@ -267,6 +272,26 @@ def test_plain_command_on_a_bag_split_per_axis(tmp_path: Path) -> None:
             sig = np.asarray(calibs[0]['sigma'][sensor][key], float)
             d = np.abs(np.asarray(calibs[1][sensor][key], float) - np.asarray(v, float))
             assert np.all(d <= 1e-2 * np.maximum(sig, 1e-30)), (sensor, key)
+
+
+def test_plain_command_names_axes_that_never_meet(tmp_path: Path) -> None:
+    """Every fixture joint comes, one per message, but each only in its own third of the bag:
+    one line naming them and the wait, and no calibration file."""
+    from msg_adapters.bag import read_bag
+
+    from imu_calib_ros.cli import main
+    from imu_calib_ros.testing.world_cases import make_case
+    bag, truth = make_case(tmp_path, unit='nav', size=0.1, seed=13, plan='static_6pos')
+    out, calib = tmp_path / 'thirds', tmp_path / 'c.yaml'
+    _split_per_axis(Path(bag), out, disjoint_of=len(read_bag(bag)[1]))
+    err = io.StringIO()
+    with redirect_stderr(err):
+        rc = main(['replay', str(out), '--fixture', str(truth.fixture_path), '--output',
+                   str(calib), '--quiet'])
+    lines = err.getvalue().strip().splitlines()
+    assert rc == 2 and not calib.exists(), lines
+    assert len(lines) == 1 and all(n in lines[0] for n in NAMES), lines
+    assert 'one per message, and never all within 0.5 s of one another' in lines[0], lines
 
 
 def test_read_bag_of_a_split_bag_and_of_another_publisher(tmp_path: Path) -> None:

@@ -291,9 +291,8 @@ def _check_usable(est: CalibrationEstimator, ledger: RunLedger, fixture: Fixture
             what = (f'the joint states never carry the fixture joint{"s" * (len(never) > 1)} '
                     f'{", ".join(never)} (they carry {", ".join(seen)})')
         elif seen:  # one axis per message, and they never met
-            what = ('the joint states carry the fixture joints in separate messages that '
-                    f'never overlap in time (each of {", ".join(seen)} within '
-                    f'{MERGE_WAIT_NS * 1e-9:g} s of the others)')
+            what = (f'the joint states carry the fixture joints {", ".join(seen)} one per '
+                    f'message, and never all within {MERGE_WAIT_NS * 1e-9:g} s of one another')
         raise InputError(f'{what}: check --joint-topic and the fixture file')
     if not est.is_running and est.counters['imu_processed'] == 0:
         gap = ledger.longest_joint_gap_s()
