@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from .buffers import point_to_mean
+from .buffers import point_to_mean, still_tolerance_rad
 from .coarse import CoarseStart, NoRotation, coarse_start, implausible
 from .config import EstimatorConfig
 
@@ -132,8 +132,13 @@ class Bootstrap:
             try:
                 # before the end only a determined start is taken: skip the gyro fits when
                 # the accelerometers already show it is not (same outcome, 1/5 of the cost)
+                cfg = self.config
+                tol = still_tolerance_rad(arrays[3], arrays[4],
+                                          cfg.stationary_joint_tolerance_rad,
+                                          cfg.init_window_s)
                 st = coarse_start(*arrays, fixture,
-                                  tol_rad=self.config.stationary_joint_tolerance_rad,
+                                  tol_rad=cfg.stationary_joint_tolerance_rad if tol is None
+                                  else tol,
                                   only_determined=not final,
                                   point_samples=self.config.imu_sample_type == 'point',
                                   joint_timing_sigma_s=self.joint_timing_sigma_s)

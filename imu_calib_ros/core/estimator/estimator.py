@@ -54,7 +54,8 @@ from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
 from .alignment import align, initial_covariance, level_coupling, still_run
 from .bootstrap import Bootstrap
-from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
+from .buffers import (ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean,
+                      still_tolerance_rad)
 from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible, timing_group_size
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
@@ -179,6 +180,9 @@ class CalibrationEstimator:
         self._filter: ErrorStateFilter | None = None
         self._imu = ImuBuffer()
         self._joints = JointBuffer(self.counters)
+        # joint travel that counts as rest, from the first joint samples (still_tolerance_rad)
+        self._still_tol: float | None = None
+        self._first_joints: list[tuple[NDArray[np.int64], FloatArray]] = []
         self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
         self._half_span = 1  # samples each side of an omega_dot difference (propagation)
         self._rate_a: float | None = None  # the encoders' weight in the lever arm's rate
@@ -418,6 +422,23 @@ class CalibrationEstimator:
             self._joints.append(*self._recorded(t_ns, q))
         else:
             self._joints.extend(*self._recorded(t_ns, q))
+        if self._still_tol is None:  # the first joint samples give the encoders' noise
+            self._first_joints.append((np.atleast_1d(np.asarray(t_ns, np.int64)),
+                                       np.atleast_2d(np.asarray(q, float))))
+            jt = np.concatenate([x[0] for x in self._first_joints])
+            jq = np.concatenate([x[1] for x in self._first_joints])
+            self._still_tol = still_tolerance_rad(
+                jt, np.unwrap(jq, axis=0), self.config.stationary_joint_tolerance_rad,
+                self.config.init_window_s)
+            if self._still_tol is not None:
+                self._first_joints = []
+
+    @property
+    def still_tolerance_rad(self) -> float:
+        """Joint travel that counts as rest (:func:`.buffers.still_tolerance_rad`): the
+        config's until the first joint samples have spanned the alignment window."""
+        return (self.config.stationary_joint_tolerance_rad if self._still_tol is None
+                else self._still_tol)
 
     def _recorded(self, t_ns: Any, q: FloatArray) -> tuple[Any, FloatArray]:
         """Joint stamps and angles as the joint record holds them: the stamps minus the
@@ -578,7 +599,7 @@ class CalibrationEstimator:
                 gi = np.fromiter(sorted(gaps), np.intp)
                 w[gi], f[gi] = w_raw[gi], f_raw[gi]
         bounds = sorted({0, *gaps, len(t)})
-        tol = self.config.stationary_joint_tolerance_rad
+        tol = self.still_tolerance_rad
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             t_before = self._imu.last_stamp_ns
             if a in gaps and t_before is not None:
@@ -703,7 +724,9 @@ class CalibrationEstimator:
             lay.scale)
         R_v = noise_covariance(cfg.velocity_sigma_m_s)
         z_a, H_a, have_att = self._encoder_attitude(t[blk.ends], blk.R_enu_imu_end)
-        R_a = noise_covariance(cfg.attitude_sigma_rad)
+        # the encoders' own noise where it is above the setting (a 12-14 bit encoder: 0.1-0.4
+        # mrad; at 0.4 mrad the fixed 0.1 mrad gated the updates and re-aligned 22 times)
+        R_a = noise_covariance(max(cfg.attitude_sigma_rad, self._encoder_scatter_rad))
         R_ab = self._latency_attitude_covariance(blk, R_a) if have_att.any() else None
         if chain is not None:  # a general chain: its errors bound in the noise (issue 15)
             R_vb = R_v[None] + chain[4] / MEAS_SCALE ** 2
@@ -824,7 +847,7 @@ class CalibrationEstimator:
         if not a:  # the gyros alone: no encoder rates to evaluate
             return w_gyro
         covered, q_e, qd_e = self._joints.motion_at(
-            t_ns, self.config.stationary_joint_tolerance_rad, CHAIN_STILL_HALF_WINDOW_S)
+            t_ns, self.still_tolerance_rad, CHAIN_STILL_HALF_WINDOW_S)
         if q_e is None or qd_e is None:
             return w_gyro
         axes = self.fixture.angular_axes_enu(self._with_offsets(q_e))  # (B, n, 3)
@@ -870,7 +893,7 @@ class CalibrationEstimator:
         if not len(self._joints):
             return (np.zeros(B, bool), np.zeros((B, n)), np.zeros((B, n)), zeros,
                     np.zeros((B, 3, 3)), np.zeros((B, 3, 3)), np.zeros((B, 3, k)))
-        covered, q, qd = self._joints.motion_at(t_ns, cfg.stationary_joint_tolerance_rad,
+        covered, q, qd = self._joints.motion_at(t_ns, self.still_tolerance_rad,
                                                 CHAIN_STILL_HALF_WINDOW_S)
         if q is None or qd is None:
             return (covered, np.zeros((B, n)), np.zeros((B, n)), zeros, np.zeros((B, 3, 3)),
@@ -1072,9 +1095,11 @@ class CalibrationEstimator:
         if len(t) < 3 or len(self._joints) < 2:
             return False
         cfg = self.config
+        if self._still_tol is None:  # the encoders' noise not known yet: nothing is still
+            return False
         jt, jq = self._joints.arrays()
         win_ns = int(cfg.init_window_s * 1e9)
-        start_j, stop_j = still_run(jt, jq, win_ns, cfg.stationary_joint_tolerance_rad)
+        start_j, stop_j = still_run(jt, jq, win_ns, self._still_tol)
         t_start = jt[start_j]
         k0 = int(np.searchsorted(t, t_start))
         if k0 > 0:  # nothing before the still run can be used
@@ -1421,7 +1446,7 @@ class CalibrationEstimator:
             self.counters['imu_dropped_at_gap'] += self._imu.drop_all()
             return
         still = cfg.gap_policy == 'bridge' and self._joints.still_between(
-            t_before_ns, t_after_ns, self.config.stationary_joint_tolerance_rad)
+            t_before_ns, t_after_ns, self.still_tolerance_rad)
         if not still and can_bridge:
             try:
                 self._propagate_rest()  # to the gap: the bridge starts there

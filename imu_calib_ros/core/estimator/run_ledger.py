@@ -89,6 +89,7 @@ class RunLedger:
         # still spans of the runs that ended before sample _span_from (they no longer change)
         self._spans: list[tuple[int, int, FloatArray]] = []
         self._span_from = 0
+        self._span_tol = math.nan  # the tolerance they were found with
 
     # ------------------------------------------------------------------ input side
     def imu(self, batch: ImuBatch) -> None:
@@ -341,9 +342,11 @@ class RunLedger:
     def _still_spans(self) -> list[tuple[int, int, FloatArray]]:
         """:func:`.coarse.still_spans` of the joint record: those of the runs that ended are
         kept (they depend on their own samples only), the rest is scanned again."""
+        tol = float(self.est.still_tolerance_rad)
+        if tol != self._span_tol:  # fixed from the first joint samples: scanned anew
+            self._spans, self._span_from, self._span_tol = [], 0, tol
         a = self._span_from
         tj = self._jt_buf[a:self._jn]
-        tol = float(self.est.config.stationary_joint_tolerance_rad)
         spans, last_run = still_spans(tj, self._jq_buf[a:self._jn], MIN_WINDOW_S, tol)
         if len(tj) < 2:
             return self._spans + spans
