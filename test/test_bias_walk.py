@@ -43,6 +43,10 @@ class _Est:
     is_running: bool = False
     raised: tuple[float, float] | None = None
 
+    @property
+    def still_tolerance_rad(self) -> float:
+        return self.config.stationary_joint_tolerance_rad
+
     def assumed_noise(self) -> tuple[float, float, float, float]:
         return N_G, N_A, 0.0, 0.0
 

@@ -308,9 +308,11 @@ def run(args: Any) -> int:
         reorder = passes[-1].reorder_stats
         verdict = run_.verdict
         if not verdict.passed and not args.force:
+            lacks = _joints_the_fixture_lacks(args, fixture)  # the likeliest cause, if so
             raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_, fixture)}'
-                                 f'{run_.estimator.stamp_hint()}; no calibration written '
-                                 '(--force writes it, marked as failing)')
+                                 f'{run_.estimator.stamp_hint()}{"; " * bool(lacks)}{lacks}; '
+                                 'no calibration written (--force writes it, marked as '
+                                 'failing)')
         note = _walk_note(calib)  # about the file written: not before a refusal
         if note and not args.quiet:
             print(note, file=sys.stderr)
