@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from imu_calib_ros.cli import main
@@ -200,6 +201,34 @@ def test_diverged_filter_writes_no_calibration(bags: Path, tmp_path: Path, capsy
     truth = CalibrationResult.load(bags / 'moving' / 'truth.yaml')
     after = truth.extra['bias_at_end']['gyro_rad_s'][0] + 2e-3
     assert abs(calib.errors.gyro_bias_rad_s[0] - after) < 3 * calib.sigma.gyro_bias_rad_s[0]
+
+
+@pytest.mark.parametrize('fault, words', [
+    ('gyro_deg_s', ['gyro values look like deg/s']),
+    ('accel_g', ['accelerometer values look like g']),
+    ('joints_deg', ['joint positions look like degrees']),
+])
+def test_wrong_units_are_named(bags: Path, tmp_path: Path, capsys, fault: str,
+                               words: list[str]) -> None:
+    """A driver's units wrong in the bag: one line naming them, no file. Before session 21
+    gyro rates in deg/s were latched by the input guard, which then refused every IMU sample,
+    and the line read "no stationary window of 2 s ... start the recording at rest"; joint
+    positions in degrees read "the gyro rates do not follow the fixture's joint rotations
+    ... check the fixture file's joint axes" (the encoder rates are 57.3 times the gyros')."""
+    from msg_adapters.bag import read_bag, write_bag
+    imu, joints = read_bag(bags / 'moving' / 'bag.mcap')
+    if fault == 'gyro_deg_s':
+        imu.gyro_rad_s[:] = np.degrees(imu.gyro_rad_s)
+    elif fault == 'accel_g':
+        imu.accel_m_s2[:] = imu.accel_m_s2 / 9.80665
+    else:
+        joints.positions_rad[:] = np.degrees(joints.positions_rad)
+        if joints.velocities_rad_s is not None:
+            joints.velocities_rad_s[:] = np.degrees(joints.velocities_rad_s)
+    bad = tmp_path / 'units.mcap'
+    write_bag(bad, imu, joints)
+    out = tmp_path / 'c.yaml'
+    check_failed(*replay(capsys, bad, out), out, *words)
 
 
 def test_wrong_fixture_is_one_line(bags: Path, tmp_path: Path, capsys) -> None:

@@ -1029,6 +1029,12 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     rms = float(np.sqrt(np.mean(resid[moving] ** 2))) if moving.any() else 0.0
     rate_rms = float(np.sqrt(np.mean(wi[moving] ** 2))) if moving.any() else 0.0
     if rms > max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms):
+        _, _, enc_mag = _rate_nominal(fixture, spline, t_mid + latency, tol_rad)
+        ratio = float(np.median(enc_mag[moving] / np.linalg.norm(wi[moving] - bias0, axis=1)))
+        if abs(ratio * math.pi / 180.0 - 1.0) < 0.1:  # frame-free, as the guard's deg/s test
+            raise ValueError(f'the joint positions look like degrees, not radians (the encoder '
+                             f'rates are {ratio:.1f} times the gyro rates): publish '
+                             'JointState positions in rad')
         raise ValueError(f'the gyro rates do not follow the fixture\'s joint rotations '
                          f'({rms:.3g} rad/s rms left after the best linear fit, '
                          f'{100 * rms / rate_rms:.0f} % of the rates): check the fixture file\'s '

@@ -501,6 +501,12 @@ class CalibrationEstimator:
         stream gaps (:attr:`~..input_guard.InputGuard.stamps_error`), or ''."""
         return self._guard.stamps_error or ''
 
+    @property
+    def units_error(self) -> str:
+        """The input guard's latched refusal of IMU values in the wrong units (g for m/s^2,
+        deg/s for rad/s: :attr:`~..input_guard.InputGuard.units_error`), or ''."""
+        return self._guard.units_error or ''
+
     def stamp_hint(self) -> str:
         """A clause naming IMU or joint stamps that scatter about their rate too much to be
         put back on the sender's clock (:func:`~..stamp_clock.scatter_hint`), or ''."""

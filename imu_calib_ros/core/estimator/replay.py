@@ -279,6 +279,8 @@ def _check_usable(est: CalibrationEstimator, ledger: RunLedger, fixture: Fixture
     c = est.counters
     if c['imu_samples'] == 0:
         raise InputError('no IMU samples in the input: check --imu-topic')
+    if est.units_error:  # every later IMU sample was refused: the cause of what follows
+        raise InputError(est.units_error)
     if est.stamps_error:
         raise InputError(est.stamps_error)
     if c['joint_samples'] == 0:
