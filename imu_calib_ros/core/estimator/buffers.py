@@ -530,3 +530,20 @@ def still_tolerance_rad(t_ns: NDArray[np.int64], q_rad: FloatArray, config_tol_r
             STILL_NOISE_MIN_SAMPLES)
     noise = float(np.max(encoder_noise_rad(np.asarray(q_rad, float)[:k])))
     return max(float(config_tol_rad), STILL_NOISE_SIGMAS * noise)
+
+
+def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
+    """Each joint's encoder step [rad] from samples ``q_rad`` (n, joints): the smallest
+    spacing (above 1e-12 rad of rounding) between the distinct angles it read. A quantised
+    encoder reads whole steps, so its angle at rest is off by up to half a step, an error
+    that no average over a window removes (``step / sqrt(12)`` rms over poses); with
+    continuous noise the smallest spacing is a small fraction of the noise, and what it adds
+    is negligible. A joint that only ever moved fast and never rested between neighbouring
+    steps reads a multiple of its step (the error then overstated)."""
+    q = np.unwrap(np.asarray(q_rad, float), axis=0)
+    out = np.zeros(q.shape[1])
+    for j in range(q.shape[1]):
+        d = np.diff(np.unique(q[:, j]))
+        d = d[d > 1e-12]
+        out[j] = float(d.min()) if len(d) else 0.0
+    return out

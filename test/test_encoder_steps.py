@@ -1,0 +1,88 @@
+"""Quantised table encoders in the self-check's stationary windows (session 21).
+
+An encoder reads whole steps, so a joint at rest is off by up to half a step however long the
+window: 0.1 mrad steps (the size of a 16-bit encoder's) leave each pose's attitude 29 urad rms
+off, and the gravity a navigation unit sees there 28 ug off, where its 20 s window mean is
+good to 1 ug. The windows' chi2 assumed the white noise alone and came out 5.56 per dof,
+refusing a navigation calibration within 2.4 sigma of the truth. (Where every pose is a whole
+number of steps, as quarter turns are of 2^16 steps per turn, each joint is off by one
+constant that its zero takes up.) The step is read from the joint record
+(``buffers.encoder_quantum_rad``) and its attitude error enters each window's covariance
+(``run_ledger.step_attitude_variance``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import io
+from contextlib import redirect_stderr
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from imu_calib_ros.core.fixture import Fixture
+
+STEP_16_BIT = 2 * np.pi / 2 ** 16
+#: a step of the same size that a quarter turn is no whole number of (a 62,832-count
+#: encoder): each pose of a plan is then off by its own fraction of a step
+STEP = 1e-4
+
+
+def test_the_step_is_read_from_the_record() -> None:
+    """Whole steps (an oscillation, a turn starting from rest, dithering at rest) give the
+    step; continuous noise gives a small fraction of its sigma, which adds nothing that
+    matters."""
+    from imu_calib_ros.core.estimator.buffers import encoder_quantum_rad
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 10.0, 1001)
+    q = np.column_stack([0.3 * np.sin(t), 0.01 * t ** 2, 0.0 * t]) \
+        + rng.normal(0.0, 2e-5, (1001, 3))
+    steps = np.array([STEP_16_BIT, 4 * STEP_16_BIT, STEP_16_BIT])
+    got = encoder_quantum_rad(np.round(q / steps) * steps)
+    np.testing.assert_allclose(got, steps, rtol=1e-9)
+    assert np.all(encoder_quantum_rad(q) < 0.1 * 2e-5)
+    assert np.all(encoder_quantum_rad(np.zeros((5, 3))) == 0.0)  # never moved
+
+
+def test_step_attitude_variance_by_hand() -> None:
+    """One joint about IMU x at rest with gravity along IMU z: ``dtheta x f`` has only a y
+    component, ``-g dtheta_x``: variance ``g^2 step^2 / 12`` on y, none on x and z."""
+    from imu_calib_ros.core.estimator.run_ledger import step_attitude_variance
+    fx = Fixture.from_dict({'site': {'latitude_deg': 45.0, 'height_m': 0.0},
+                            'joints': [{'name': 'a', 'axis': [1.0, 0.0, 0.0]}],
+                            'imu': {'rpy_deg': [0.0, 0.0, 0.0], 'xyz_m': [0.0, 0.0, 0.0]}})
+    g = 9.8
+    var = step_attitude_variance(fx, np.zeros((2, 1)), np.array([[0.0, 0.0, g]] * 2),
+                                 np.array([1e-4]))
+    np.testing.assert_allclose(var, [[0.0, g ** 2 * 1e-8 / 12, 0.0]] * 2, rtol=1e-12,
+                               atol=1e-24)
+
+
+@pytest.mark.parametrize('seed', [31])
+def test_plain_command_on_a_table_with_coarse_steps(tmp_path: Path, seed: int) -> None:
+    """A navigation unit's world bag with the joint states rounded to 0.1 mrad steps (and no
+    velocities, as an encoder count gives none): exit 0,
+    every estimated parameter within 4 sigma (refused before: windows' chi2/dof 5.56)."""
+    from msg_adapters.bag import read_bag, write_bag
+
+    from imu_calib_ros.cli import main
+    from imu_calib_ros.testing.world_cases import compare_calibration, make_case
+    bag, truth = make_case(tmp_path, unit='nav', size=1.0, mount_deg=3.0, seed=seed)
+    imu, joints = read_bag(bag)
+    # (with 2^16 steps per turn the plan's poses, quarter turns apart, are whole steps:
+    # one constant error per joint, which the joints' zeros take up)
+    joints.positions_rad[:] = np.round(joints.positions_rad / STEP) * STEP
+    joints = dataclasses.replace(joints, velocities_rad_s=None)  # positions only, as counted
+    coarse = tmp_path / 'steps.mcap'
+    write_bag(coarse, imu, joints)
+    out = tmp_path / 'c.yaml'
+    err = io.StringIO()
+    with redirect_stderr(err):
+        rc = main(['replay', str(coarse), '--fixture', str(truth.fixture_path), '--output',
+                   str(out), '--quiet'])
+    assert rc == 0, err.getvalue()
+    rows = [r for r in compare_calibration(yaml.safe_load(out.read_text()), truth.data)
+            if not r.fixed]
+    worst = max(rows, key=lambda r: abs(r.z))
+    assert abs(worst.z) < 4.0, (worst.name, worst.z)
