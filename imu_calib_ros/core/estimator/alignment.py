@@ -33,10 +33,18 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 
-def still_run(jt: IntArray, jq: FloatArray, window_ns: int,
-              tol_rad: float) -> tuple[int, int | None]:
+#: joint travel that counts as rest, in the encoders' own noise sigmas (:func:`still_run`)
+STILL_NOISE_SIGMAS = 6.0
+#: the spread of a second difference ``q[k+1] - 2 q[k] + q[k-1]`` of white noise: sqrt(6) sigma
+_SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
+
+
+def still_run(jt: IntArray, jq: FloatArray, window_ns: int, tol_rad: float,
+              noise_sigmas: float = 0.0) -> tuple[int, int | None]:
     """The first window of joint samples that lasts ``window_ns`` (at the median sample
-    spacing) and in which every joint stays within ``tol_rad`` of its mean over the window.
+    spacing) and in which every joint stays within ``tol_rad`` of its mean over the window,
+    or within ``noise_sigmas`` of its own encoder noise there where that is larger (the rms
+    of the window's second differences over sqrt(6)).
 
     Each window is judged on its own samples only, so the answer does not depend on how the
     samples arrived (pushes of 50 ms live, 40 s batches offline). The test it replaces, a run
@@ -44,6 +52,12 @@ def still_run(jt: IntArray, jq: FloatArray, window_ns: int,
     last half second at up to 0.1 rad/s passed for rest, and a navigation unit aligned there
     came out with its g-sensitivity 8.7 sigma off. Mean, largest and smallest value over
     every window at once (a cumulative sum, ``scipy.ndimage`` running extrema).
+
+    The noise term (session 21): encoders with 50 urad of noise never stayed within the
+    fixed 0.1 mrad over 2 s, and the plain command refused every such bag ("no stationary
+    window"). A window in motion cannot pass for rest through it: a constant rate leaves no
+    second differences, and a changing one moves the joint by ``alpha T^2 / 2`` over the
+    window against ``noise_sigmas alpha dt^2`` (``T / dt`` >= 20 samples).
 
     Returns
     -------
@@ -65,11 +79,43 @@ def still_run(jt: IntArray, jq: FloatArray, window_ns: int,
     h = m // 2  # a centred running extremum of size m at i + m // 2 covers i .. i + m - 1
     hi = maximum_filter1d(jq, m, axis=0, mode='nearest')[h:h + n - m + 1]
     lo = minimum_filter1d(jq, m, axis=0, mode='nearest')[h:h + n - m + 1]
-    still = np.all((hi - mean <= tol_rad) & (mean - lo <= tol_rad), axis=1)
+    tol = np.full_like(mean, tol_rad)
+    if noise_sigmas > 0.0 and m >= 4:
+        tol = np.maximum(tol, noise_sigmas * window_noise_rad(jq, m))
+    still = np.all((hi - mean <= tol) & (mean - lo <= tol), axis=1)
     ok = np.flatnonzero(still)
     if not len(ok):
         return n - m + 1, None
     return int(ok[0]), int(ok[0]) + m - 1
+
+
+def window_noise_rad(jq: FloatArray, m: int) -> FloatArray:
+    """Each joint's encoder noise over every window of ``m`` samples (``n - m + 1`` rows):
+    the rms of its ``m - 2`` second differences over sqrt(6) (cumulative sums)."""
+    d2 = np.diff(jq, n=2, axis=0)
+    c = np.concatenate([np.zeros((1, jq.shape[1])), np.cumsum(d2 ** 2, axis=0)])
+    return np.sqrt((c[m - 2:] - c[:-(m - 2)]) / (m - 2)) / _SECOND_DIFFERENCE_GAIN
+
+
+def still_tolerance_rad(jt: IntArray, jq: FloatArray, window_s: float,
+                        config_tol_rad: float) -> float | None:
+    """The joint travel that counts as rest from here on: ``config_tol_rad``, or
+    :data:`STILL_NOISE_SIGMAS` times the largest encoder noise of the first still window
+    (:func:`still_run` with the noise term) where that is larger; None while there is no such
+    window. The coarse start's stationary windows, the filter's stillness tests and its
+    ledger use it; taken from the first still window of the record, the value is the same
+    however the samples arrive, for the coarse start (on the held data) and the filter alike.
+    """
+    start, stop = still_run(jt, jq, int(window_s * 1e9), config_tol_rad, STILL_NOISE_SIGMAS)
+    return None if stop is None else window_tolerance_rad(jq[start:stop + 1], config_tol_rad)
+
+
+def window_tolerance_rad(jq_window: FloatArray, config_tol_rad: float) -> float:
+    """``config_tol_rad`` or :data:`STILL_NOISE_SIGMAS` times the largest encoder noise of the
+    still window ``jq_window`` (its samples, n x joints), whichever is larger."""
+    m = len(jq_window)
+    noise = float(np.max(window_noise_rad(jq_window, m))) if m >= 4 else 0.0
+    return max(float(config_tol_rad), STILL_NOISE_SIGMAS * noise)
 
 
 @dataclass(frozen=True)

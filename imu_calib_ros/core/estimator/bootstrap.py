@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from .buffers import point_to_mean, still_tolerance_rad
+from .alignment import still_tolerance_rad
+from .buffers import point_to_mean
 from .coarse import CoarseStart, NoRotation, coarse_start, implausible
 from .config import EstimatorConfig
 
@@ -133,9 +134,8 @@ class Bootstrap:
                 # before the end only a determined start is taken: skip the gyro fits when
                 # the accelerometers already show it is not (same outcome, 1/5 of the cost)
                 cfg = self.config
-                tol = still_tolerance_rad(arrays[3], arrays[4],
-                                          cfg.stationary_joint_tolerance_rad,
-                                          cfg.init_window_s)
+                tol = still_tolerance_rad(arrays[3], arrays[4], cfg.init_window_s,
+                                          cfg.stationary_joint_tolerance_rad)
                 st = coarse_start(*arrays, fixture,
                                   tol_rad=cfg.stationary_joint_tolerance_rad if tol is None
                                   else tol,

@@ -501,36 +501,6 @@ def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
     return 1.4826 * mad / _SECOND_DIFFERENCE_GAIN
 
 
-#: joint travel that counts as rest, in the encoders' noise sigmas (:func:`still_tolerance_rad`)
-STILL_NOISE_SIGMAS = 6.0
-#: the fewest joint samples the encoder noise of :func:`still_tolerance_rad` is taken from
-STILL_NOISE_MIN_SAMPLES = 8
-
-
-def still_tolerance_rad(t_ns: NDArray[np.int64], q_rad: FloatArray, config_tol_rad: float,
-                        window_s: float) -> float | None:
-    """The joint travel that counts as rest: ``stationary_joint_tolerance_rad``, or
-    :data:`STILL_NOISE_SIGMAS` times the largest encoder noise (:func:`encoder_noise_rad`)
-    of the record's first ``window_s`` of joint samples, whichever is larger; None while
-    the joint samples span less than ``window_s`` (or are fewer than
-    :data:`STILL_NOISE_MIN_SAMPLES`).
-
-    A table whose encoders read 50 urad of noise (a 17-bit encoder) never stayed within
-    the fixed 0.1 mrad over the alignment's 2 s: the plain command refused every such bag
-    with "no stationary window ... start the recording at rest". At 6 sigma a joint at rest
-    leaves the tolerance about once in 5e8 samples, and sample-to-sample steps (4.2 sigma
-    of a difference) once in 40,000. Taken from the first samples only, the value is the
-    same however the samples arrive (pushes or one batch) and for the coarse start and the
-    filter alike; a record that starts in a move raises it only by that move's second
-    differences (a constant rate cancels)."""
-    t = np.asarray(t_ns, np.int64)
-    if len(t) < STILL_NOISE_MIN_SAMPLES or (int(t[-1]) - int(t[0])) * 1e-9 < window_s:
-        return None
-    k = max(int(np.searchsorted(t, int(t[0]) + int(window_s * 1e9), side='right')),
-            STILL_NOISE_MIN_SAMPLES)
-    noise = float(np.max(encoder_noise_rad(np.asarray(q_rad, float)[:k])))
-    return max(float(config_tol_rad), STILL_NOISE_SIGMAS * noise)
-
 
 def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
     """Each joint's encoder step [rad] from samples ``q_rad`` (n, joints): the smallest

@@ -52,10 +52,10 @@ from ..stamp_clock import scatter_hint
 from ..strapdown import Strapdown
 from ..types import ImuBatch, ImuSample, JointBatch, JointSample
 from . import error_model as em
-from .alignment import align, initial_covariance, level_coupling, still_run
+from .alignment import (STILL_NOISE_SIGMAS, align, initial_covariance, level_coupling,
+                        still_run, window_tolerance_rad)
 from .bootstrap import Bootstrap
-from .buffers import (ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean,
-                      still_tolerance_rad)
+from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
 from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible, timing_group_size
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
@@ -180,9 +180,8 @@ class CalibrationEstimator:
         self._filter: ErrorStateFilter | None = None
         self._imu = ImuBuffer()
         self._joints = JointBuffer(self.counters)
-        # joint travel that counts as rest, from the first joint samples (still_tolerance_rad)
+        # joint travel that counts as rest, from the first still window (still_tolerance_rad)
         self._still_tol: float | None = None
-        self._first_joints: list[tuple[NDArray[np.int64], FloatArray]] = []
         self._prev: tuple[Any, FloatArray, FloatArray] | None = None  # last raw samples used
         self._half_span = 1  # samples each side of an omega_dot difference (propagation)
         self._rate_a: float | None = None  # the encoders' weight in the lever arm's rate
@@ -422,21 +421,12 @@ class CalibrationEstimator:
             self._joints.append(*self._recorded(t_ns, q))
         else:
             self._joints.extend(*self._recorded(t_ns, q))
-        if self._still_tol is None:  # the first joint samples give the encoders' noise
-            self._first_joints.append((np.atleast_1d(np.asarray(t_ns, np.int64)),
-                                       np.atleast_2d(np.asarray(q, float))))
-            jt = np.concatenate([x[0] for x in self._first_joints])
-            jq = np.concatenate([x[1] for x in self._first_joints])
-            self._still_tol = still_tolerance_rad(
-                jt, np.unwrap(jq, axis=0), self.config.stationary_joint_tolerance_rad,
-                self.config.init_window_s)
-            if self._still_tol is not None:
-                self._first_joints = []
 
     @property
     def still_tolerance_rad(self) -> float:
-        """Joint travel that counts as rest (:func:`.buffers.still_tolerance_rad`): the
-        config's until the first joint samples have spanned the alignment window."""
+        """Joint travel that counts as rest (:func:`.alignment.still_tolerance_rad`): the
+        config's until the first alignment, then the larger of it and six encoder-noise
+        sigmas of that alignment's window."""
         return (self.config.stationary_joint_tolerance_rad if self._still_tol is None
                 else self._still_tol)
 
@@ -1101,11 +1091,10 @@ class CalibrationEstimator:
         if len(t) < 3 or len(self._joints) < 2:
             return False
         cfg = self.config
-        if self._still_tol is None:  # the encoders' noise not known yet: nothing is still
-            return False
         jt, jq = self._joints.arrays()
         win_ns = int(cfg.init_window_s * 1e9)
-        start_j, stop_j = still_run(jt, jq, win_ns, self._still_tol)
+        start_j, stop_j = still_run(jt, jq, win_ns, cfg.stationary_joint_tolerance_rad,
+                                    STILL_NOISE_SIGMAS)
         t_start = jt[start_j]
         k0 = int(np.searchsorted(t, t_start))
         if k0 > 0:  # nothing before the still run can be used
@@ -1115,6 +1104,9 @@ class CalibrationEstimator:
         if stop_j is None:  # still waiting: keep only the current still run (bounded memory)
             self._joints.keep_from(start_j)
             return False
+        if self._still_tol is None:  # rest as the encoders show it, from here on
+            self._still_tol = window_tolerance_rad(jq[start_j:stop_j + 1],
+                                                   cfg.stationary_joint_tolerance_rad)
         if len(t) < 3 or t[-1] < t_start + win_ns:
             return False
         k1 = int(np.searchsorted(t, t_start + win_ns, side='right'))
