@@ -310,7 +310,8 @@ def run(args: Any) -> int:
         if not verdict.passed and not args.force:
             lacks = _joints_the_fixture_lacks(args, fixture)  # the likeliest cause, if so
             raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_, fixture)}'
-                                 f'{run_.estimator.stamp_hint()}{"; " * bool(lacks)}{lacks}; '
+                                 f'{run_.estimator.stamp_hint()}{run_.estimator.encoder_hint()}'
+                                 f'{"; " * bool(lacks)}{lacks}; '
                                  'no calibration written (--force writes it, marked as '
                                  'failing)')
         note = _walk_note(calib)  # about the file written: not before a refusal

@@ -94,6 +94,10 @@ CHAIN_STILL_HALF_WINDOW_S = 0.25
 #: fewest that do), :meth:`CalibrationEstimator._rate_weight`
 ENCODER_NOISE_SAMPLES = 4000
 ENCODER_NOISE_MIN = 50
+#: the most encoder noise at rest the plain command is checked on (session 21: world bags
+#: with 0.2 mrad under a consumer unit pass; with 0.4 mrad the latency came out 4.2 ms off
+#: and the run was refused), :meth:`CalibrationEstimator.encoder_hint`
+ENCODER_NOISE_CHECKED_RAD = 2e-4
 #: rms derivative of a cubic spline through unit white noise at unit spacing, at instants
 #: spread over the intervals (1.17 at the knots; numerical, scipy's not-a-knot spline)
 SPLINE_RATE_NOISE = 1.57
@@ -502,6 +506,19 @@ class CalibrationEstimator:
         put back on the sender's clock (:func:`~..stamp_clock.scatter_hint`), or ''."""
         g = self._guard
         return scatter_hint({'IMU': g.imu_clock, 'joint': g.joint_clock})
+
+    def encoder_hint(self) -> str:
+        """A clause naming the joint encoders' noise at rest when it is above what the plain
+        command has been shown to calibrate with (:data:`ENCODER_NOISE_CHECKED_RAD`), or ''.
+        Beyond it the joint-stamp latency is read off by milliseconds (the interpolated
+        encoder record's noise depends on where an instant falls between two joint stamps),
+        and a refusal then comes from updates gated in the turns."""
+        s = self._encoder_scatter_rad
+        if s <= ENCODER_NOISE_CHECKED_RAD:
+            return ''
+        return (f' (the joint encoders read {s * 1e3:.2f} mrad of noise at rest, more than the '
+                f'{ENCODER_NOISE_CHECKED_RAD * 1e3:.1f} mrad this command is checked on: '
+                'check the table\'s encoder resolution and its joint state publisher)')
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies
