@@ -13,13 +13,10 @@ constant that its zero takes up.) The step is read from the joint record
 from __future__ import annotations
 
 import dataclasses
-import io
-from contextlib import redirect_stderr
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from imu_calib_ros.core.fixture import Fixture
 
@@ -66,8 +63,7 @@ def test_plain_command_on_a_table_with_coarse_steps(tmp_path: Path, seed: int) -
     every estimated parameter within 4 sigma (refused before: windows' chi2/dof 5.56)."""
     from msg_adapters.bag import read_bag, write_bag
 
-    from imu_calib_ros.cli import main
-    from imu_calib_ros.testing.world_cases import compare_calibration, make_case
+    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
     bag, truth = make_case(tmp_path, unit='nav', size=1.0, mount_deg=3.0, seed=seed)
     imu, joints = read_bag(bag)
     # (with 2^16 steps per turn the plan's poses, quarter turns apart, are whole steps:
@@ -76,13 +72,7 @@ def test_plain_command_on_a_table_with_coarse_steps(tmp_path: Path, seed: int) -
     joints = dataclasses.replace(joints, velocities_rad_s=None)  # positions only, as counted
     coarse = tmp_path / 'steps.mcap'
     write_bag(coarse, imu, joints)
-    out = tmp_path / 'c.yaml'
-    err = io.StringIO()
-    with redirect_stderr(err):
-        rc = main(['replay', str(coarse), '--fixture', str(truth.fixture_path), '--output',
-                   str(out), '--quiet'])
-    assert rc == 0, err.getvalue()
-    rows = [r for r in compare_calibration(yaml.safe_load(out.read_text()), truth.data)
-            if not r.fixed]
-    worst = max(rows, key=lambda r: abs(r.z))
+    rc, err, worst = plain_command_worst(coarse, truth.fixture_path, truth.data,
+                                         tmp_path / 'c.yaml')
+    assert rc == 0 and worst is not None, err
     assert abs(worst.z) < 4.0, (worst.name, worst.z)

@@ -8,21 +8,20 @@ initial alignment: start the recording at rest", whatever the unit. A window now
 when every joint stays within six of its own encoder-noise sigmas there, and the first such
 window sets the tolerance from then on (``alignment.still_tolerance_rad``). A first version
 took the noise from the record's first 2 s: a record that starts in a jerk-limited move at
-10 Hz read 0.2 mrad there and took move tails for rest (a corner's windows' chi2/dof 27). A consumer unit on a table with 0.2 mrad of encoder noise also needs the encoder
-attitude's noise in its measurement covariance (13 of 3592 updates gated with 0.1 mrad
+10 Hz read 0.2 mrad there and took move tails for rest (a corner's windows' chi2/dof 27).
+A consumer unit on a table with 0.2 mrad of encoder noise also needs the encoder attitude's
+noise in its measurement covariance (13 of 3592 updates gated with 0.1 mrad
 assumed).
 """
 from __future__ import annotations
 
-import io
-from contextlib import redirect_stderr
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
-from imu_calib_ros.core.estimator.alignment import STILL_NOISE_SIGMAS, still_run, still_tolerance_rad
+from imu_calib_ros.core.estimator.alignment import (STILL_NOISE_SIGMAS, still_run,
+                                                    still_tolerance_rad)
 
 TOL = 1e-4
 
@@ -92,19 +91,12 @@ def test_plain_command_on_noisy_encoders(tmp_path: Path, unit: str,
     parameter within 4 of its sigmas (the bench's run rule). Before, both exited 2 ("no
     stationary window"); with only the tolerance mended, the consumer unit's run failed its
     self-check (13 of 3592 updates gated: the encoder attitude's 0.2 mrad read as 0.1)."""
-    from imu_calib_ros.cli import main
-    from imu_calib_ros.testing.world_cases import compare_calibration, make_case
+    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
     bag, truth = make_case(tmp_path, unit=unit, size=1.0, mount_deg=3.0, seed=21,
                            encoder_noise_rad=encoder_noise_rad)
-    out = tmp_path / 'c.yaml'
-    err = io.StringIO()
-    with redirect_stderr(err):
-        rc = main(['replay', str(bag), '--fixture', str(truth.fixture_path), '--output',
-                   str(out), '--quiet'])
-    assert rc == 0, err.getvalue()
-    rows = [r for r in compare_calibration(yaml.safe_load(out.read_text()), truth.data)
-            if not r.fixed]
-    worst = max(rows, key=lambda r: abs(r.z))
+    rc, err, worst = plain_command_worst(bag, truth.fixture_path, truth.data,
+                                         tmp_path / 'c.yaml')
+    assert rc == 0 and worst is not None, err
     assert abs(worst.z) < 4.0, (worst.name, worst.z)
 
 
@@ -113,15 +105,11 @@ def test_encoders_noisier_than_checked_are_named_in_a_refusal(tmp_path: Path) ->
     4.2 ms off (the interpolated record's noise depends on where an instant falls between
     joint stamps), updates are gated in the turns and the run is refused; the one line says
     how noisy the encoders are (it named only the gated updates)."""
-    from imu_calib_ros.cli import main
-    from imu_calib_ros.testing.world_cases import make_case
+    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
     bag, truth = make_case(tmp_path, unit='consumer_mems', size=1.0, mount_deg=3.0, seed=21,
                            encoder_noise_rad=4e-4)
     out = tmp_path / 'c.yaml'
-    err = io.StringIO()
-    with redirect_stderr(err):
-        rc = main(['replay', str(bag), '--fixture', str(truth.fixture_path), '--output',
-                   str(out), '--quiet'])
-    lines = err.getvalue().strip().splitlines()
+    rc, err, _ = plain_command_worst(bag, truth.fixture_path, truth.data, out)
+    lines = err.strip().splitlines()
     assert rc != 0 and not out.exists() and len(lines) == 1, lines
     assert 'the joint encoders read 0.4' in lines[0], lines

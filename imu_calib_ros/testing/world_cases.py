@@ -272,3 +272,23 @@ def compare_calibration(calib: dict[str, Any], truth: dict[str, Any],
             rows.append(Comparison(label, group, key, float(tv[idx]), float(cv[idx]),
                                    float(sv[idx]), key in fixed, scale, unit))
     return rows
+
+
+def plain_command_worst(bag: str | os.PathLike[str], fixture: str | os.PathLike[str],
+                        truth: dict[str, Any], out: str | os.PathLike[str]
+                        ) -> tuple[int, str, Comparison | None]:
+    """CONTRACT 5's plain ``imu-calib replay BAG --fixture F --output OUT`` (``--quiet``), in
+    process: its exit status, its stderr, and the estimated parameter farthest from
+    ``truth`` in its own sigmas (:func:`compare_calibration`; None without a file)."""
+    import contextlib
+    import io
+    from ..cli import main
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main(['replay', str(bag), '--fixture', str(fixture), '--output', str(out),
+                   '--quiet'])
+    if rc != 0 or not Path(out).exists():
+        return rc, err.getvalue(), None
+    rows = [r for r in compare_calibration(yaml.safe_load(Path(out).read_text()), truth)
+            if not r.fixed]
+    return rc, err.getvalue(), max(rows, key=lambda r: abs(r.z))
