@@ -501,7 +501,6 @@ def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
     return 1.4826 * mad / _SECOND_DIFFERENCE_GAIN
 
 
-
 def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
     """Each joint's encoder step [rad] from samples ``q_rad`` (n, joints): the smallest
     spacing (above 1e-12 rad of rounding) between the distinct angles it read. A quantised
