@@ -87,7 +87,7 @@ def test_white_noise_density_is_unbiased_on_short_windows(samples: int) -> None:
     """A stationary pose of 10 s at 50 Hz (500 samples) or 100 Hz (1000): the mean density of
     300 white-noise records is the true one to 4 standard errors of that mean (the spread is
     measured on the same records, about 3.4 % and 2.4 % per record). The non-negative fit weighted
-    by each point's own value read 3.4 % and 2.2 % low (about 14 and 9 standard errors).
+    by each point's own value read 3.4 % and 2.2 % low (about 17 and 16 standard errors).
     Q and R were then too small, and a 50 Hz navigation run gated updates beyond its
     self-check's tolerance."""
     rng = np.random.default_rng(samples)

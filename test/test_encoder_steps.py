@@ -28,8 +28,7 @@ STEP = 1e-4
 
 def test_the_step_is_read_from_the_record() -> None:
     """Whole steps (an oscillation, a turn starting from rest, dithering at rest) give the
-    step; continuous noise gives a small fraction of its sigma, which adds nothing that
-    matters."""
+    step; continuous noise gives none (its spacings are no multiples of one step)."""
     from imu_calib_ros.core.estimator.buffers import encoder_quantum_rad
     rng = np.random.default_rng(0)
     t = np.linspace(0.0, 10.0, 1001)
@@ -38,8 +37,16 @@ def test_the_step_is_read_from_the_record() -> None:
     steps = np.array([STEP_16_BIT, 4 * STEP_16_BIT, STEP_16_BIT])
     got = encoder_quantum_rad(np.round(q / steps) * steps)
     np.testing.assert_allclose(got, steps, rtol=1e-9)
-    assert np.all(encoder_quantum_rad(q) < 0.1 * 2e-5)
+    assert np.all(encoder_quantum_rad(q) == 0.0)  # no lattice
     assert np.all(encoder_quantum_rad(np.zeros((5, 3))) == 0.0)  # never moved
+    assert encoder_quantum_rad(np.zeros(0)).shape == (1,)  # one joint, no samples
+    # a wrapped 16-bit encoder turning for 24 rad, its record unwrapped by whole turns (2 pi
+    # is no whole number of its steps): read on the wrapped angles; the visited angles are
+    # 8 steps apart or more, and the step is the largest fraction of that they all share
+    t2 = np.linspace(0.0, 60.0, 6001)
+    wrapped = np.round((np.mod(0.4 * t2 + np.pi, 2 * np.pi) - np.pi) / STEP_16_BIT) * STEP_16_BIT
+    np.testing.assert_allclose(encoder_quantum_rad(np.unwrap(wrapped)), [STEP_16_BIT],
+                               rtol=1e-9)
 
 
 def test_step_attitude_variance_by_hand() -> None:

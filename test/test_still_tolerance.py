@@ -1,4 +1,4 @@
-"""Rest as the encoders can show it (``buffers.still_tolerance_rad``).
+"""Rest as the encoders can show it (``alignment.still_tolerance_rad``).
 
 The filter aligns on the first 2 s in which every joint stays within a tolerance of its mean,
 and the coarse start takes its stationary windows the same way. With the fixed 0.1 mrad, a
@@ -113,3 +113,20 @@ def test_encoders_noisier_than_checked_are_named_in_a_refusal(tmp_path: Path) ->
     lines = err.strip().splitlines()
     assert rc != 0 and not out.exists() and len(lines) == 1, lines
     assert 'the joint encoders read 0.4' in lines[0], lines
+
+
+@pytest.mark.parametrize('rate_hz', [10.0, 20.0, 50.0])
+def test_a_step_is_no_noise(rate_hz: float) -> None:
+    """A joint that jumps by 0.5 rad between two samples (a one-sample move, or the joint
+    states of a move lost): the rms of a window's second differences reads the jump as
+    ``s sqrt(12 / (m - 2))`` of noise, which at 10-20 Hz made a 0.3-0.4 rad tolerance and a
+    window across the jump "still"; the median-based estimate does not move, so no window
+    holding the jump passes, and the tolerance stays the setting."""
+    t = np.arange(0.0, 8.0, 1.0 / rate_hz)
+    q = np.where(t < 3.0, 0.0, 0.5) + np.random.default_rng(2).normal(0.0, 1e-6, len(t))
+    jq = np.column_stack([q, 0.1 + 0.0 * t])
+    jt = (t * 1e9).astype(np.int64)
+    assert still_tolerance_rad(jt, jq, 2.0, TOL) == TOL
+    start, stop = still_run(jt[int(1.5 * rate_hz):], jq[int(1.5 * rate_hz):], int(2e9), TOL,
+                            STILL_NOISE_SIGMAS)
+    assert stop is not None and t[int(1.5 * rate_hz) + start] >= 3.0

@@ -93,10 +93,13 @@ def accumulate_static(bag: str, imu_topic: str, progress: Callable[[int], None] 
 def accumulate_windows(bag: str, imu_topic: str, joint_topic: str, min_static_s: float
                        ) -> tuple[Any, int]:
     """The stationary windows of a calibration bag (every joint within
-    :data:`STATIC_TOL_RAD` for ``min_static_s``: ``coarse.static_windows``), one segment each."""
+    :data:`STATIC_TOL_RAD`, or within six of the encoders' own noise sigmas where that is
+    larger, as the estimator judges rest (``alignment.still_tolerance_rad``), for
+    ``min_static_s``: ``coarse.static_windows``), one segment each."""
     import numpy as np
 
     from ..core.allan import windows_accumulator
+    from ..core.estimator.alignment import still_tolerance_rad
     from ..core.estimator.coarse import static_windows
     from msg_adapters.bag import read_bag
     imu, joints = read_bag(bag, imu_topic, joint_topic)
@@ -104,11 +107,13 @@ def accumulate_windows(bag: str, imu_topic: str, joint_topic: str, min_static_s:
         raise InputError(f'{bag}: too few IMU or joint samples for stationary windows')
     q = np.unwrap(joints.positions_rad, axis=0)
     t = imu.stamps_ns.astype(np.int64)
+    tol = still_tolerance_rad(joints.stamps_ns, q, min_static_s, STATIC_TOL_RAD)
+    tol = STATIC_TOL_RAD if tol is None else tol
     wins = static_windows(joints.stamps_ns, q, t, imu.gyro_rad_s, imu.accel_m_s2,
-                          min_static_s, STATIC_TOL_RAD)
+                          min_static_s, tol)
     if not wins:
         raise InputError(f'{bag}: no stationary window of {min_static_s:g} s (every joint '
-                         f'still within {STATIC_TOL_RAD:g} rad); --static for a static record')
+                         f'still within {tol:g} rad); --static for a static record')
     ranges = [(int(np.searchsorted(t, w.t0_ns)), int(np.searchsorted(t, w.t1_ns)))
               for w in wins]
     return windows_accumulator(imu.gyro_rad_s, imu.accel_m_s2,

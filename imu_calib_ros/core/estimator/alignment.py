@@ -1,7 +1,8 @@
 """Coarse alignment and the filter's start: the first stationary window, levelling, P0.
 
 The navigation starts at rest: in the first window of ``init_window_s`` during which no joint
-moves by more than ``stationary_joint_tolerance_rad``, the attitude is the fixture's
+moves by more than ``stationary_joint_tolerance_rad`` (or six of its own encoder-noise sigmas
+there, where that is larger: :func:`still_run`), the attitude is the fixture's
 (``R_enu_imu(q)`` with the mounting rotation) levelled by the mean compensated specific force
 (at rest the specific force is the reaction to gravity, "up": the rotation taking it to
 ENU's z), heading from the fixture kinematics (a turntable's heading is its encoder reading;
@@ -22,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from .. import sensor_model as sm
 from . import error_model as em
+from .buffers import encoder_noise_rad
 from .config import EstimatorConfig
 from .ekf import chunk_transition_rows
 from .error_model import StateLayout
@@ -56,8 +58,11 @@ def still_run(jt: IntArray, jq: FloatArray, window_ns: int, tol_rad: float,
     The noise term (session 21): encoders with 50 urad of noise never stayed within the
     fixed 0.1 mrad over 2 s, and the plain command refused every such bag ("no stationary
     window"). A window in motion cannot pass for rest through it: a constant rate leaves no
-    second differences, and a changing one moves the joint by ``alpha T^2 / 2`` over the
-    window against ``noise_sigmas alpha dt^2`` (``T / dt`` >= 20 samples).
+    second differences, and a constant acceleration takes the joint ``alpha T^2 / 3`` from
+    its mean over the window against ``noise_sigmas alpha dt^2 / sqrt(6)`` (``T / dt`` >=
+    20 samples). A step does leave second differences; the noise is therefore the smaller of
+    their rms and their median-based estimate (:func:`.buffers.encoder_noise_rad`), which a
+    step does not move.
 
     Returns
     -------
@@ -79,11 +84,21 @@ def still_run(jt: IntArray, jq: FloatArray, window_ns: int, tol_rad: float,
     h = m // 2  # a centred running extremum of size m at i + m // 2 covers i .. i + m - 1
     hi = maximum_filter1d(jq, m, axis=0, mode='nearest')[h:h + n - m + 1]
     lo = minimum_filter1d(jq, m, axis=0, mode='nearest')[h:h + n - m + 1]
-    tol = np.full_like(mean, tol_rad)
+    fixed = np.all((hi - mean <= tol_rad) & (mean - lo <= tol_rad), axis=1)
     if noise_sigmas > 0.0 and m >= 4:
-        tol = np.maximum(tol, noise_sigmas * window_noise_rad(jq, m))
-    still = np.all((hi - mean <= tol) & (mean - lo <= tol), axis=1)
-    ok = np.flatnonzero(still)
+        # the rms noise over every window at once lets a window with a step in it pass (a
+        # jump of s reads as s sqrt(12 / (m - 2)) of noise); the windows it lets through
+        # beyond the fixed tolerance are checked in order with the median-based noise
+        tol = np.maximum(tol_rad, noise_sigmas * window_noise_rad(jq, m))
+        loose = np.all((hi - mean <= tol) & (mean - lo <= tol), axis=1)
+        first = int(np.argmax(fixed)) if fixed.any() else len(fixed)
+        for i in np.flatnonzero(loose[:first]).tolist():
+            t_i = np.maximum(tol_rad, np.minimum(
+                tol[i], noise_sigmas * encoder_noise_rad(jq[i:i + m])))
+            if np.all((hi[i] - mean[i] <= t_i) & (mean[i] - lo[i] <= t_i)):
+                fixed[i] = True
+                break
+    ok = np.flatnonzero(fixed)
     if not len(ok):
         return n - m + 1, None
     return int(ok[0]), int(ok[0]) + m - 1
@@ -91,7 +106,10 @@ def still_run(jt: IntArray, jq: FloatArray, window_ns: int, tol_rad: float,
 
 def window_noise_rad(jq: FloatArray, m: int) -> FloatArray:
     """Each joint's encoder noise over every window of ``m`` samples (``n - m + 1`` rows):
-    the rms of its ``m - 2`` second differences over sqrt(6) (cumulative sums)."""
+    the rms of its ``m - 2`` second differences over sqrt(6) (cumulative sums); zero for
+    windows of fewer than four samples."""
+    if m < 4:
+        return np.zeros((max(len(jq) - m + 1, 0), jq.shape[1]))
     d2 = np.diff(jq, n=2, axis=0)
     c = np.concatenate([np.zeros((1, jq.shape[1])), np.cumsum(d2 ** 2, axis=0)])
     return np.sqrt((c[m - 2:] - c[:-(m - 2)]) / (m - 2)) / _SECOND_DIFFERENCE_GAIN
@@ -112,10 +130,13 @@ def still_tolerance_rad(jt: IntArray, jq: FloatArray, window_s: float,
 
 def window_tolerance_rad(jq_window: FloatArray, config_tol_rad: float) -> float:
     """``config_tol_rad`` or :data:`STILL_NOISE_SIGMAS` times the largest encoder noise of the
-    still window ``jq_window`` (its samples, n x joints), whichever is larger."""
+    still window ``jq_window`` (its samples, n x joints), whichever is larger; the noise as
+    :func:`still_run` judged it (the smaller of the rms and the median-based estimate)."""
     m = len(jq_window)
-    noise = float(np.max(window_noise_rad(jq_window, m))) if m >= 4 else 0.0
-    return max(float(config_tol_rad), STILL_NOISE_SIGMAS * noise)
+    if m < 4:
+        return float(config_tol_rad)
+    noise = np.minimum(window_noise_rad(jq_window, m)[0], encoder_noise_rad(jq_window))
+    return max(float(config_tol_rad), STILL_NOISE_SIGMAS * float(np.max(noise)))
 
 
 @dataclass(frozen=True)

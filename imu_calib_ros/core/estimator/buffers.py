@@ -502,17 +502,41 @@ def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
 
 
 def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
-    """Each joint's encoder step [rad] from samples ``q_rad`` (n, joints): the smallest
-    spacing (above 1e-12 rad of rounding) between the distinct angles it read. A quantised
-    encoder reads whole steps, so its angle at rest is off by up to half a step, an error
-    that no average over a window removes (``step / sqrt(12)`` rms over poses); with
-    continuous noise the smallest spacing is a small fraction of the noise, and what it adds
-    is negligible. A joint that only ever moved fast and never rested between neighbouring
-    steps reads a multiple of its step (the error then overstated)."""
-    q = np.unwrap(np.asarray(q_rad, float), axis=0)
+    """Each joint's encoder step [rad] from samples ``q_rad`` (n, joints), 0 where the angles
+    are not on a lattice. A quantised encoder reads whole steps, so its angle at rest is off
+    by up to half a step, an error that no average over a window removes (``step /
+    sqrt(12)`` rms over poses). The step is the largest whole fraction of the least spacing
+    (above rounding) between the distinct angles read of which at least
+    :data:`LATTICE_SHARE` of all the spacings are whole multiples (continuous noise: a few
+    per cent are, at any of the fractions tried); the angles as given (a multi-turn count),
+    else wrapped to (-pi, pi] (a wrapped encoder's record unwrapped by whole turns that are
+    no whole number of steps)."""
+    q = np.asarray(q_rad, float)
+    q = q[:, None] if q.ndim == 1 else q
     out = np.zeros(q.shape[1])
     for j in range(q.shape[1]):
-        d = np.diff(np.unique(q[:, j]))
-        d = d[d > 1e-12]
-        out[j] = float(d.min()) if len(d) else 0.0
+        for x in (q[:, j], np.mod(q[:, j] + np.pi, 2.0 * np.pi) - np.pi):
+            d = np.diff(np.unique(x))
+            d = d[d > 1e-12]
+            if not len(d):
+                break
+            c = _lattice_step(d)
+            if c > 0.0:
+                out[j] = c
+                break
     return out
+
+
+#: share of an encoder record's angle spacings that must be whole multiples of its step for
+#: it to count as quantised (:func:`encoder_quantum_rad`)
+LATTICE_SHARE = 0.9
+
+
+def _lattice_step(d: FloatArray, most: int = 64) -> float:
+    """The largest ``min(d) / n`` (``n`` <= ``most``) of which :data:`LATTICE_SHARE` of the
+    spacings ``d`` are whole multiples (to 1e-3 of it), or 0."""
+    for n in range(1, most + 1):
+        k = d * (n / d.min())
+        if np.mean(np.abs(k - np.round(k)) < 1e-3) >= LATTICE_SHARE:
+            return float(d.min()) / n
+    return 0.0

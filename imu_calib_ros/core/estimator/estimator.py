@@ -83,11 +83,13 @@ __all__ = ['CalibrationEstimator', 'Estimate', 'prior_sigmas', 'CONTRACT_KEYS', 
 FloatArray = NDArray[np.float64]
 _LOG = logging.getLogger('imu_calib_ros.estimator')
 MIN_NIS_UPDATES = 100  # least accepted updates of a kind for its whole-run NIS to count
-# A chain joint's rate is clamped to zero where it stays within stationary_joint_tolerance_rad
-# over at least this either side of an update (buffers.JointBuffer.motion_at): the clamp is
-# then wrong by at most ~tol / window at a move's start or end (+-3 samples at 100 Hz: up to
-# 3e-3 rad/s, 2-3 mm/s at the end of an arm, gated against a tactical unit's zero-velocity
-# noise and read as bias walk by the NIS adaptation). The filter waits for joint states this
+# A chain joint's rate is clamped to zero where it stays within the stillness tolerance
+# (still_tolerance_rad: stationary_joint_tolerance_rad, or six encoder-noise sigmas where
+# larger) over at least this either side of an update (buffers.JointBuffer.motion_at): the
+# clamp is then wrong by at most ~tol / window at a move's start or end (+-3 samples at
+# 100 Hz: up to 3e-3 rad/s at the 0.1 mrad setting, 2-3 mm/s at the end of an arm, gated
+# against a tactical unit's zero-velocity noise and read as bias walk by the NIS adaptation;
+# proportionally more on noisier encoders). The filter waits for joint states this
 # far beyond a chunk end (live and offline alike).
 CHAIN_STILL_HALF_WINDOW_S = 0.25
 #: the latest joint samples whose second differences give the encoders' noise (and the
@@ -612,7 +614,6 @@ class CalibrationEstimator:
                 gi = np.fromiter(sorted(gaps), np.intp)
                 w[gi], f[gi] = w_raw[gi], f_raw[gi]
         bounds = sorted({0, *gaps, len(t)})
-        tol = self.still_tolerance_rad
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             t_before = self._imu.last_stamp_ns
             if a in gaps and t_before is not None:
@@ -620,7 +621,8 @@ class CalibrationEstimator:
                 if a not in long_gaps and self._fill_gap(t_before, t_after, w[a], f[a]):
                     pass
                 elif a in long_gaps or self.guard_config.bridge_motion \
-                        or not self._joints.still_between(t_before, t_after, tol):
+                        or not self._joints.still_between(t_before, t_after,
+                                                          self.still_tolerance_rad):
                     # with bridge_motion every short gap is bridged (at rest the encoders
                     # show no turn): whether the joints moved is not known live until their
                     # states after the gap come, and a batch must do what the stream does
