@@ -514,7 +514,10 @@ def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
     q = np.asarray(q_rad, float)
     q = q[:, None] if q.ndim == 1 else q
     out = np.zeros(q.shape[1])
+    head = q[:LATTICE_PROBE_SAMPLES]
     for j in range(q.shape[1]):
+        if len(q) > len(head) and not encoder_quantum_rad(head[:, j])[0]:
+            continue  # no lattice in the first samples: none (an hour of 200 Hz: 1 s saved)
         for x in (q[:, j], np.mod(q[:, j] + np.pi, 2.0 * np.pi) - np.pi):
             d = np.diff(np.unique(x))
             d = d[d > 1e-12]
@@ -530,6 +533,8 @@ def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
 #: share of an encoder record's angle spacings that must be whole multiples of its step for
 #: it to count as quantised (:func:`encoder_quantum_rad`)
 LATTICE_SHARE = 0.9
+#: the first joint samples that decide whether a record is on a lattice at all
+LATTICE_PROBE_SAMPLES = 20_000
 
 
 def _lattice_step(d: FloatArray, most: int = 64) -> float:
