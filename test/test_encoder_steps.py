@@ -83,3 +83,24 @@ def test_plain_command_on_a_table_with_coarse_steps(tmp_path: Path, seed: int) -
                                          tmp_path / 'c.yaml')
     assert rc == 0 and worst is not None, err
     assert abs(worst.z) < 4.0, (worst.name, worst.z)
+
+
+def test_steps_too_coarse_for_the_rates_are_named(tmp_path: Path) -> None:
+    """0.38 mrad steps (14 bits a turn) under a navigation unit: the coarse start's rate fit
+    leaves 2 % of the rates unexplained and refuses the fixture; the line now also names the
+    encoders' steps (it blamed the fixture file alone, which is right here)."""
+    from msg_adapters.bag import read_bag, write_bag
+
+    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
+    bag, truth = make_case(tmp_path, unit='nav', size=1.0, mount_deg=3.0, seed=31)
+    imu, joints = read_bag(bag)
+    step = 2 * np.pi / 2 ** 14
+    joints.positions_rad[:] = np.round(joints.positions_rad / step) * step
+    joints = dataclasses.replace(joints, velocities_rad_s=None)
+    coarse = tmp_path / 'steps14.mcap'
+    write_bag(coarse, imu, joints)
+    out = tmp_path / 'c.yaml'
+    rc, err, _ = plain_command_worst(coarse, truth.fixture_path, truth.data, out)
+    lines = err.strip().splitlines()
+    assert rc == 2 and not out.exists() and len(lines) == 1, lines
+    assert 'joint encoders are too coarse for the rates: 0.38 mrad steps' in lines[0], lines
