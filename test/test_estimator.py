@@ -251,18 +251,24 @@ def test_shipped_config_files_match_the_dataclass() -> None:
     assert mems.attitude_aiding
 
 
-def test_gaps_in_motion_are_bridged_alike_live_and_in_a_batch() -> None:
+@pytest.mark.parametrize('encoder_noise_rad', [1e-6, 5e-5])
+def test_gaps_in_motion_are_bridged_alike_live_and_in_a_batch(encoder_noise_rad: float) -> None:
     """Samples dropped during turns: the live path (joint states and IMU samples one at a time
     in stamp order, so each bridge waits for the joint states after its gap) and the batch
-    path (every joint state first) bridge the same gaps the same way."""
+    path (every joint state first) bridge the same gaps the same way. Also with 50 urad of
+    encoder noise (session 21), where rest is judged against the encoders' own noise and the
+    first still window sets the tolerance, and a gap at rest after the alignment: the same
+    windows, tolerance and estimate however the samples arrive."""
     fx = load_fixture('three_axis')
     grade = load_grade('nav_grade')
     sim = simulate(fx, build_profile(load_plan('demo_short'), fx), grade,
-                   SimConfig(imu_rate_hz=100.0, seed=3))
+                   SimConfig(imu_rate_hz=100.0, seed=3, encoder_noise_rad=encoder_noise_rad))
     t_s = (sim.imu.stamps_ns - sim.imu.stamps_ns[0]) * 1e-9
     keep = np.ones(len(t_s), bool)
     for t0 in (30.3, 45.1, 62.7, 80.2):  # a few samples lost, far apart, inside moves
         keep[(t_s >= t0) & (t_s < t0 + 0.04)] = False
+    if encoder_noise_rad > 1e-6:  # and one at rest, after the alignment on the first dwell
+        keep[(t_s >= 3.0) & (t_s < 3.04)] = False
     idx = np.nonzero(keep)[0]
     t_end = sim.imu.stamps_ns[idx[-1]]
     cfg = EstimatorConfig()
@@ -280,6 +286,9 @@ def test_gaps_in_motion_are_bridged_alike_live_and_in_a_batch() -> None:
     bridged = a.counters['gaps_bridged_in_motion']
     assert bridged == b.counters['gaps_bridged_in_motion'] >= 3, (a.counters, b.counters)
     assert a.counters['gaps_reinitialised'] == b.counters['gaps_reinitialised'] == 0
+    assert a.still_tolerance_rad == b.still_tolerance_rad
+    if encoder_noise_rad > 1e-6:  # rest judged against the encoders: 6 x 50 urad
+        assert a.still_tolerance_rad == pytest.approx(6 * encoder_noise_rad, rel=0.3)
     sa, sb = a.estimate_state(), b.estimate_state()
     np.testing.assert_allclose(sa.values, sb.values, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(sa.covariance, sb.covariance, rtol=1e-8, atol=1e-30)
