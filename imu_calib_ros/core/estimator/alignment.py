@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from .. import sensor_model as sm
 from . import error_model as em
-from .buffers import encoder_noise_rad
+from .buffers import encoder_noise_rad, window_noise_rad
 from .config import EstimatorConfig
 from .ekf import chunk_transition_rows
 from .error_model import StateLayout
@@ -37,8 +37,6 @@ IntArray = NDArray[np.int64]
 
 #: joint travel that counts as rest, in the encoders' own noise sigmas (:func:`still_run`)
 STILL_NOISE_SIGMAS = 6.0
-#: the spread of a second difference ``q[k+1] - 2 q[k] + q[k-1]`` of white noise: sqrt(6) sigma
-_SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
 
 
 def still_run(jt: IntArray, jq: FloatArray, window_ns: int, tol_rad: float,
@@ -102,17 +100,6 @@ def still_run(jt: IntArray, jq: FloatArray, window_ns: int, tol_rad: float,
     if not len(ok):
         return n - m + 1, None
     return int(ok[0]), int(ok[0]) + m - 1
-
-
-def window_noise_rad(jq: FloatArray, m: int) -> FloatArray:
-    """Each joint's encoder noise over every window of ``m`` samples (``n - m + 1`` rows):
-    the rms of its ``m - 2`` second differences over sqrt(6) (cumulative sums); zero for
-    windows of fewer than four samples."""
-    if m < 4:
-        return np.zeros((max(len(jq) - m + 1, 0), jq.shape[1]))
-    d2 = np.diff(jq, n=2, axis=0)
-    c = np.concatenate([np.zeros((1, jq.shape[1])), np.cumsum(d2 ** 2, axis=0)])
-    return np.sqrt((c[m - 2:] - c[:-(m - 2)]) / (m - 2)) / _SECOND_DIFFERENCE_GAIN
 
 
 def still_tolerance_rad(jt: IntArray, jq: FloatArray, window_s: float,

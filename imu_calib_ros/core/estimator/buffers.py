@@ -501,6 +501,17 @@ def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
     return 1.4826 * mad / _SECOND_DIFFERENCE_GAIN
 
 
+def window_noise_rad(jq: FloatArray, m: int) -> FloatArray:
+    """Each joint's encoder noise over every window of ``m`` samples (``n - m + 1`` rows):
+    the rms of its ``m - 2`` second differences over sqrt(6) (cumulative sums); zero for
+    windows of fewer than four samples."""
+    if m < 4:
+        return np.zeros((max(len(jq) - m + 1, 0), jq.shape[1]))
+    d2 = np.diff(jq, n=2, axis=0)
+    c = np.concatenate([np.zeros((1, jq.shape[1])), np.cumsum(d2 ** 2, axis=0)])
+    return np.sqrt((c[m - 2:] - c[:-(m - 2)]) / (m - 2)) / _SECOND_DIFFERENCE_GAIN
+
+
 def encoder_quantum_rad(q_rad: FloatArray) -> FloatArray:
     """Each joint's encoder step [rad] from samples ``q_rad`` (n, joints), 0 where the angles
     are not on a lattice. A quantised encoder reads whole steps, so its angle at rest is off

@@ -344,7 +344,7 @@ class RunLedger:
         """:func:`.coarse.still_spans` of the joint record: those of the runs that ended are
         kept (they depend on their own samples only), the rest is scanned again."""
         tol = float(self.est.still_tolerance_rad)
-        if tol != self._span_tol:  # fixed from the first joint samples: scanned anew
+        if tol != self._span_tol:  # set at the first alignment: scanned anew
             self._spans, self._span_from, self._span_tol = [], 0, tol
         a = self._span_from
         tj = self._jt_buf[a:self._jn]
