@@ -490,6 +490,15 @@ def point_to_mean(w: FloatArray, f: FloatArray,
 _SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
 
 
+#: the most encoder noise at rest the plain command is checked on for every plan tried
+#: (session 21: 50 urad under navigation, tactical and industrial units on demo_short,
+#: srt_then_kozlov and savage_srt; 0.1-0.2 mrad passed on demo_short, but on savage_srt an
+#: industrial unit with 0.1 mrad had its joint latency 3.4 ms off and was refused, and so was
+#: a consumer unit with 0.4 mrad on demo_short, 4.2 ms off),
+#: :meth:`.estimator.CalibrationEstimator.encoder_hint` and the coarse start's rate-fit line
+ENCODER_NOISE_CHECKED_RAD = 5e-5
+
+
 def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:
     """Each joint's encoder noise [rad] from samples ``q_rad`` (n, joints): the scatter of the
     second differences (a constant rate cancels, and a constant acceleration with the median

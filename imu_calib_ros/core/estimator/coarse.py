@@ -372,26 +372,27 @@ def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatA
     return qd
 
 
-#: encoder steps or noise at rest above which a rate fit the fixture cannot explain may be the
-#: encoders' (session 21: 0.38 mrad steps, 14 bits a turn, left 2 % of a consumer unit's
-#: rates unexplained with the right fixture); the plain command is checked to 0.1 mrad steps
-#: and 0.2 mrad of noise
-COARSE_ENCODER_RAD = (1e-4, 2e-4)
+#: encoder steps above which a rate fit the fixture cannot explain may be the encoders'
+#: (session 21: 0.38 mrad steps, 14 bits a turn, left 2 % of a consumer unit's rates
+#: unexplained with the right fixture; 0.1 mrad steps pass); for their noise
+#: :data:`.buffers.ENCODER_NOISE_CHECKED_RAD`
+ENCODER_STEP_CHECKED_RAD = 1e-4
 
 
 def _coarse_encoders(q_joint: FloatArray) -> str:
     """``' (or the encoders are too coarse: ...)'`` when the joint record's steps or noise
-    are above :data:`COARSE_ENCODER_RAD`, else ''."""
-    from .buffers import encoder_noise_rad, encoder_quantum_rad
+    are above what the plain command is checked on (:data:`ENCODER_STEP_CHECKED_RAD`,
+    :data:`.buffers.ENCODER_NOISE_CHECKED_RAD`), else ''."""
+    from .buffers import ENCODER_NOISE_CHECKED_RAD, encoder_noise_rad, encoder_quantum_rad
     step = float(np.max(encoder_quantum_rad(q_joint))) if len(q_joint) > 2 else 0.0
     noise = float(np.min(encoder_noise_rad(q_joint))) if len(q_joint) > 2 else 0.0
-    if step <= COARSE_ENCODER_RAD[0] and noise <= COARSE_ENCODER_RAD[1]:
+    if step <= ENCODER_STEP_CHECKED_RAD and noise <= ENCODER_NOISE_CHECKED_RAD:
         return ''
-    what = (f'{step * 1e3:.2f} mrad steps' if step > COARSE_ENCODER_RAD[0]
+    what = (f'{step * 1e3:.2f} mrad steps' if step > ENCODER_STEP_CHECKED_RAD
             else f'{noise * 1e3:.2f} mrad of noise')
     return (f' (or the joint encoders are too coarse for the rates: {what}, where the plain '
-            f'command is checked to {COARSE_ENCODER_RAD[0] * 1e3:.1f} mrad steps and '
-            f'{COARSE_ENCODER_RAD[1] * 1e3:.1f} mrad of noise)')
+            f'command is checked to {ENCODER_STEP_CHECKED_RAD * 1e3:.2f} mrad steps and '
+            f'{ENCODER_NOISE_CHECKED_RAD * 1e3:.2f} mrad of noise)')
 
 
 def _rate_nominal(fixture: Fixture, spline: CubicSpline, t_s: FloatArray, tol_rad: float

@@ -55,7 +55,8 @@ from . import error_model as em
 from .alignment import (STILL_NOISE_SIGMAS, align, initial_covariance, level_coupling,
                         still_run, window_tolerance_rad)
 from .bootstrap import Bootstrap
-from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
+from .buffers import (ENCODER_NOISE_CHECKED_RAD, ImuBuffer, JointBuffer, encoder_noise_rad,
+                      point_to_mean)
 from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible, timing_group_size
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
@@ -96,13 +97,6 @@ CHAIN_STILL_HALF_WINDOW_S = 0.25
 #: fewest that do), :meth:`CalibrationEstimator._rate_weight`
 ENCODER_NOISE_SAMPLES = 4000
 ENCODER_NOISE_MIN = 50
-#: the most encoder noise at rest the plain command is checked on for every plan tried
-#: (session 21: 50 urad under navigation, tactical and industrial units on demo_short,
-#: srt_then_kozlov and savage_srt; 0.1-0.2 mrad passed on demo_short, but on savage_srt an
-#: industrial unit with 0.1 mrad had its joint latency 3.4 ms off and was refused, and so was
-#: a consumer unit with 0.4 mrad on demo_short, 4.2 ms off),
-#: :meth:`CalibrationEstimator.encoder_hint`
-ENCODER_NOISE_CHECKED_RAD = 5e-5
 #: rms derivative of a cubic spline through unit white noise at unit spacing, at instants
 #: spread over the intervals (1.17 at the knots; numerical, scipy's not-a-knot spline)
 SPLINE_RATE_NOISE = 1.57
