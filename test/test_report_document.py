@@ -73,6 +73,18 @@ def test_units_per_entry_ppm_on_the_diagonal_urad_off_it(ekf) -> None:
     assert max(map(len, lines[1:])) <= 90, max(lines[1:], key=len)
 
 
+@pytest.mark.parametrize('x, sigma, text', [
+    (0.003496, 0.082, '0.003'),     # digits under the noise: the line was 93 columns wide
+    (-0.01366, 0.046, '-0.014'),
+    (12.3123, 0.32, '12.31'),       # at most four significant digits, as before
+    (-4e-05, 0.0012, '0.0000'),     # no '-0.0000'
+    (1.5e-05, 2e-06, '1.500e-05'),  # outside the plain range: as fmt
+])
+def test_a_value_is_shown_no_finer_than_its_sigma(x: float, sigma: float, text: str) -> None:
+    from imu_calib_ros.core.param_table import fmt_at_sigma
+    assert fmt_at_sigma(x, sigma) == text
+
+
 def test_fixed_parameters_are_never_shown_as_estimates() -> None:
     """An SRT run that could not separate its sequences holds most of Kg fixed: those
     entries say '(fixed)' and carry no sigma; the estimated diagonal keeps its +-."""
@@ -89,7 +101,8 @@ def test_fixed_parameters_are_never_shown_as_estimates() -> None:
     lines = text.splitlines()
     k = next(i for i, line in enumerate(lines) if line.startswith('gyro Kg'))
     rows = lines[k + 2:k + 5]
-    assert '12.00 +- 15 ppm' in rows[0] and rows[0].count('(fixed)') == 2
+    # (the value to its sigma's second digit: 12, not 12.00)
+    assert ' 12 +- 15 ppm' in rows[0] and rows[0].count('(fixed)') == 2
     assert all(r.count('+-') == 1 for r in rows), rows  # only the diagonal is estimated
     # G held at zero with zero sigma: one folded line, no block of zeros
     assert 'gyro G (assumed exactly zero)' in lines[-1]

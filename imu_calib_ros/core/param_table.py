@@ -153,6 +153,19 @@ def fmt(x: float, digits: int = 4) -> str:
     return f'{x:.{digits - 1}e}'
 
 
+def fmt_at_sigma(x: float, sigma: float, digits: int = 4) -> str:
+    """A value no finer than its sigma's second digit (``0.0035 +- 0.082``, not
+    ``0.003496``: digits under the noise widened a text table past 90 columns), else
+    :func:`fmt`'s ``digits``; :func:`fmt` when either leaves the plain range."""
+    plain = 1e-3 <= sigma < 1e6 and abs(x) < 1e6
+    if not plain or not np.isfinite(x):
+        return fmt(x, digits)
+    d = max(1 - int(np.floor(np.log10(sigma))), 0)  # the decimals of fmt(sigma, 2)
+    if abs(x) >= 1e-3:
+        d = min(d, max(digits - 1 - int(np.floor(np.log10(abs(x)))), 0))
+    return f'{round(x, d) + 0.0:.{d}f}'  # (+ 0.0: no '-0.000')
+
+
 def cell_text(b: Block, idx: tuple[int, ...], pm: str = '+-') -> str:
     """One entry: ``'12.31 +- 0.32 ppm'``, ``'0 urad (fixed)'`` or ``'-'`` (structural)."""
     if b.structural[idx]:
@@ -160,7 +173,8 @@ def cell_text(b: Block, idx: tuple[int, ...], pm: str = '+-') -> str:
     u = str(b.units[idx])
     if b.fixed[idx]:
         return f'{fmt(float(b.value[idx]))} {u} (fixed)'
-    return f'{fmt(float(b.value[idx]))} {pm} {fmt(float(b.sigma[idx]), 2)} {u}'
+    s = float(b.sigma[idx])
+    return f'{fmt_at_sigma(float(b.value[idx]), s)} {pm} {fmt(s, 2)} {u}'
 
 
 def matrix_title(b: Block) -> str:
