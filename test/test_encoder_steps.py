@@ -58,7 +58,7 @@ def test_step_attitude_variance_by_hand() -> None:
                             'imu': {'rpy_deg': [0.0, 0.0, 0.0], 'xyz_m': [0.0, 0.0, 0.0]}})
     g = 9.8
     var = step_attitude_variance(fx, np.zeros((2, 1)), np.array([[0.0, 0.0, g]] * 2),
-                                 np.array([1e-4]))
+                                 np.array([1e-4 ** 2 / 12]))
     np.testing.assert_allclose(var, [[0.0, g ** 2 * 1e-8 / 12, 0.0]] * 2, rtol=1e-12,
                                atol=1e-24)
 
@@ -85,10 +85,12 @@ def test_plain_command_on_a_table_with_coarse_steps(tmp_path: Path, seed: int) -
     assert abs(worst.z) < 4.0, (worst.name, worst.z)
 
 
-def test_steps_too_coarse_for_the_rates_are_named(tmp_path: Path) -> None:
-    """0.38 mrad steps (14 bits a turn) under a navigation unit: the coarse start's rate fit
-    leaves 2 % of the rates unexplained and refuses the fixture; the line now also names the
-    encoders' steps (it blamed the fixture file alone, which is right here)."""
+def test_plain_command_with_14_bit_steps(tmp_path: Path) -> None:
+    """0.38 mrad steps (14 bits a turn) under a navigation unit: exit 0, every estimated
+    parameter within 4 sigma. Refused until session 22: the coarse start's rate fit, on
+    derivatives of the stepped record, left 2 % of the rates unexplained (against 2 % of the
+    rates allowed); it now fits 40 ms window rotations and allows for the encoders' own
+    rate noise (``coarse.encoder_rate_noise``)."""
     from msg_adapters.bag import read_bag, write_bag
 
     from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
@@ -99,8 +101,7 @@ def test_steps_too_coarse_for_the_rates_are_named(tmp_path: Path) -> None:
     joints = dataclasses.replace(joints, velocities_rad_s=None)
     coarse = tmp_path / 'steps14.mcap'
     write_bag(coarse, imu, joints)
-    out = tmp_path / 'c.yaml'
-    rc, err, _ = plain_command_worst(coarse, truth.fixture_path, truth.data, out)
-    lines = err.strip().splitlines()
-    assert rc == 2 and not out.exists() and len(lines) == 1, lines
-    assert 'joint encoders are too coarse for the rates: 0.38 mrad steps' in lines[0], lines
+    rc, err, worst = plain_command_worst(coarse, truth.fixture_path, truth.data,
+                                         tmp_path / 'c.yaml')
+    assert rc == 0 and worst is not None, err
+    assert abs(worst.z) < 4.0, (worst.name, worst.z)

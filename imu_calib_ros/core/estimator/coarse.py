@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import CubicHermiteSpline, CubicSpline
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
@@ -195,16 +195,59 @@ class CoarseStart:
             'notes': list(self.notes)}
 
 
+#: a still window's leading and trailing 0.1 s bins whose gyro means stand out from the
+#: window's median by more than this many robust sigmas are a move's tail (:func:`settled`)
+SETTLE_SIGMAS = 5.0
+SETTLE_BIN_S = 0.1
+
+
+def settled(g_bins: FloatArray) -> tuple[int, int]:
+    """The bins ``[lo, hi)`` of a still window that the gyros show at rest: leading and
+    trailing bins whose mean rate (``g_bins`` (n, 3), one row per :data:`SETTLE_BIN_S`)
+    stands out from the window's median by more than :data:`SETTLE_SIGMAS` robust sigmas
+    (1.4826 MAD over the bins) on any axis are cut, and one bin more on a side that was cut.
+
+    The joints' still test cannot see a move's last angle within its tolerance, and a
+    tolerance raised by the encoders' own noise lets much of it in: at 0.2 mrad of noise
+    (1.2 mrad tolerance) the windows took the last 0.1-0.4 s of the moves, 0.1-0.24 mrad of
+    rotation, several deg/h on a navigation gyro's 10 s mean, and its windows' chi2/dof came
+    out 7.5. A window at rest has no standing-out bin at its ends but once in 10^6."""
+    n = len(g_bins)
+    if n < 5:
+        return 0, n
+    med = np.median(g_bins, axis=0)
+    dev = np.abs(g_bins - med)
+    sig = np.maximum(1.4826 * np.median(dev, axis=0), 1e-12)
+    ok = np.flatnonzero(~np.any(dev > SETTLE_SIGMAS * sig, axis=1))
+    if not len(ok):
+        return 0, n
+    lo, hi = int(ok[0]), int(ok[-1]) + 1
+    lo, hi = lo + (lo > 0), hi - (hi < n)
+    return (lo, hi) if hi - lo >= n // 2 else (0, n)
+
+
 def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.int64],
                    w: FloatArray, f: FloatArray, min_static_s: float, tol_rad: float
                    ) -> list[StaticWindow]:
     """Windows where every joint stays within ``tol_rad`` for ``min_static_s`` (trimmed by
-    :data:`STATIC_TRIM_S` at both ends), with the IMU means over them."""
+    :data:`STATIC_TRIM_S` at both ends, and to where the gyros show rest: :func:`settled`),
+    with the IMU and joint means over them."""
     out = []
+    dt_ns = float(np.median(np.diff(t_imu_ns))) if len(t_imu_ns) > 1 else 1.0
+    per_bin = max(1, int(round(SETTLE_BIN_S * 1e9 / dt_ns)))
     for t0, t1, q_mean in still_spans(t_ns, q, min_static_s, tol_rad)[0]:
         k0, k1 = np.searchsorted(t_imu_ns, [t0, t1])
         if k1 - k0 < 10:
             continue
+        nb = (k1 - k0) // per_bin
+        lo, hi = settled(w[k0:k0 + nb * per_bin].reshape(nb, per_bin, 3).mean(axis=1))
+        if (lo, hi) != (0, nb):
+            k0, k1 = k0 + lo * per_bin, k0 + hi * per_bin
+            t0, t1 = int(t_imu_ns[k0]), int(t_imu_ns[k1 - 1])
+            j0, j1 = np.searchsorted(t_ns, [t0, t1])
+            if (t1 - t0) * 1e-9 < min_static_s or j1 <= j0:
+                continue
+            q_mean = q[j0:j1 + 1].mean(axis=0)
         out.append(StaticWindow(t0, t1, q_mean, w[k0:k1].mean(axis=0), f[k0:k1].mean(axis=0),
                                 int(k1 - k0)))
     return out
@@ -361,17 +404,6 @@ def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: 
     return math.sqrt(pair_walk(tm, T, resid, white, i, j)[0])
 
 
-def _joint_rates(spline: CubicSpline, t_s: FloatArray, tol_rad: float) -> FloatArray:
-    """Joint rates from the spline, zero where a joint stays within ``tol_rad`` over +-0.1 s:
-    the derivative of encoder noise (1e-6 rad at 100 Hz: 1.4e-4 rad/s) is a regressor error
-    that would dilute the scale of an axis that only sees small rates (regression dilution:
-    a gyro scale pulled to zero on a one-axis plan)."""
-    qd = spline(t_s, 1)
-    still = np.abs(spline(t_s + 0.1) - spline(t_s - 0.1)) < tol_rad
-    qd[still] = 0.0
-    return qd
-
-
 #: encoder steps above which a rate fit the fixture cannot explain may be the encoders'
 #: (session 21: 0.38 mrad steps, 14 bits a turn, left 2 % of a consumer unit's rates
 #: unexplained with the right fixture; 0.1 mrad steps pass); for their noise
@@ -395,16 +427,37 @@ def _coarse_encoders(q_joint: FloatArray) -> str:
             f'{ENCODER_NOISE_CHECKED_RAD * 1e3:.2f} mrad of noise)')
 
 
-def _rate_nominal(fixture: Fixture, spline: CubicSpline, t_s: FloatArray, tol_rad: float
-                  ) -> tuple[FloatArray, ...]:
-    """Joint angles, the nominal IMU frame's inertial rate in that frame, and |rate|."""
-    q = spline(t_s)
-    qd = _joint_rates(spline, t_s, tol_rad)
-    axes = fixture.angular_axes_enu(q)  # (N, n, 3); prismatic joints' rows zero
-    w_enu = np.einsum('nj,njk->nk', qd, axes)
-    R = fixture.R_enu_imu(q)
-    w_nom = np.einsum('nki,nk->ni', R, w_enu + fixture.site.omega_ie_enu)
-    return q, w_nom, np.linalg.norm(w_enu, axis=1)
+def window_rates(fixture: Fixture, spline: CubicSpline, t_a: FloatArray, t_b: FloatArray,
+                 s: float, tol_rad: float | None = None) -> FloatArray:
+    """The nominal IMU frame's mean inertial rate over each window ``[t_a, t_b]`` from the
+    encoders (joint stamps ``t + s``): ``rotvec(R(t_a + s)^T R(t_b + s)) / T`` plus the earth
+    rate, in that frame. No derivative of the encoder record (its noise would be a regressor
+    error, and its variance changes with where an instant falls between joint stamps: see
+    :func:`window_means`).
+
+    ``tol_rad``: a joint that stays within it over +-0.1 s of the window's middle is held still
+    across the window: its encoder noise (0.4 mrad across 40 ms: 0.014 rad/s) would be a
+    regressor error diluting the scale of an axis that only sees small rates (regression
+    dilution: a gyro scale pulled towards zero on a one-axis plan)."""
+    q_a, q_b = spline(t_a + s), spline(t_b + s)
+    if tol_rad is not None:
+        t_m = 0.5 * (t_a + t_b) + s
+        still = np.abs(spline(t_m + 0.1) - spline(t_m - 0.1)) < tol_rad
+        q_a = np.where(still, q_b, q_a)
+    R_a, R_b = fixture.R_enu_imu(q_a), fixture.R_enu_imu(q_b)
+    rot = Rotation.from_matrix(np.swapaxes(R_a, 1, 2) @ R_b).as_rotvec()
+    return rot / (t_b - t_a)[:, None] + np.einsum('nki,k->ni', R_b, fixture.site.omega_ie_enu)
+
+
+def encoder_rate_noise(q_joint: FloatArray, window_s: float) -> float:
+    """The rms per IMU axis that the encoders' own noise (or steps: ``q / sqrt(12)``) puts on
+    :func:`window_rates` over ``window_s`` (two ends, joints' noise spread over 3 axes)."""
+    from .buffers import encoder_noise_rad, encoder_quantum_rad
+    if len(q_joint) < 4:
+        return 0.0
+    sig = np.maximum(np.atleast_1d(encoder_noise_rad(q_joint)),
+                     np.atleast_1d(encoder_quantum_rad(q_joint)) / math.sqrt(12.0))
+    return math.sqrt(2.0 * float(np.sum(sig ** 2)) / 3.0) / window_s
 
 
 LATENCY_WINDOW_S = 0.04  # rates compared as means over this many seconds (see below)
@@ -429,6 +482,57 @@ def whole_windows(t_end_s: FloatArray, dt_s: float, n_win: int, select: NDArray[
     return dtk, whole if 2 * len(whole) >= len(i) else i
 
 
+#: golden-ratio step of the window ends' sub-sample phases (:func:`window_means`)
+_PHASE_STEP = 0.5 * (math.sqrt(5.0) - 1.0)
+
+
+def window_means(t_end_s: FloatArray, dt_s: float, select: NDArray[np.intp],
+                 *series: FloatArray, shift_rates: bool = False
+                 ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
+    """Windows of about :data:`LATENCY_WINDOW_S` over the IMU record for the latency and gyro
+    fits: their start and end instants ``t_a``, ``t_b`` and each series' mean over
+    ``[t_a, t_b]``; with ``shift_rates``, after the means, each mean's rate of change with a
+    shift of the window, ``d/dh mean[t_a + h, t_b + h]`` (over ``h = +-dt/2``).
+
+    The ends fall a sub-sample phase ``phi`` before IMU interval ends, ``phi`` spread evenly
+    over [0, 1) of a period across the windows (golden-ratio sequence), and the means come
+    from the cumulative integral of the interval means, interpolated by a cubic Hermite
+    spline (node slopes: the neighbouring interval means). At whole interval ends the
+    encoder instants ``t + s`` would sit at one phase between joint stamps in every window
+    (IMU and joints on one clock at one rate), and the interpolated encoder record's noise
+    depends on that phase: a term of the cost that moves with ``s`` and pulls its minimum
+    (0.1 mrad of encoder noise at 100 Hz put an industrial unit's latency 3.7 ms off, 0.4 mrad
+    a consumer unit's 4.2 ms). Spread evenly, the phases average that term to a constant; the
+    gyro side's own interpolation noise does not depend on ``s`` at all.
+
+    A window's ends lie inside whole intervals (:func:`whole_windows`), with one whole
+    interval more on each side; ``select`` are indices of the intervals holding ``t_b``.
+    """
+    n_win = max(1, int(round(LATENCY_WINDOW_S / dt_s)))
+    sel = np.asarray(select, np.intp)
+    dtk, j = whole_windows(t_end_s, dt_s, n_win + 3, sel[sel < len(t_end_s) - 1] + 1)
+    i = j - 1
+    nodes = np.concatenate([[t_end_s[0] - dtk[0]], t_end_s])
+    # a node's slope: the mean of the intervals on both sides, one side next to a gap
+    nxt_whole = np.concatenate([dtk[1:] <= 1.5 * dt_s, [False]])
+    phi = (np.arange(len(i)) * _PHASE_STEP) % 1.0
+    t_b = t_end_s[i] - phi * dtk[i]
+    t_a = t_end_s[i - n_win] - phi * dtk[i - n_win]
+    T = (t_b - t_a)[:, None]
+    h = 0.5 * dt_s
+    means, rates = [], []
+    for x in series:
+        x = np.asarray(x, dtype=float)
+        c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x * dtk[:, None], axis=0)])
+        slope = np.where(nxt_whole[:, None], 0.5 * (x + np.roll(x, -1, axis=0)), x)
+        spl = CubicHermiteSpline(nodes, c, np.vstack([x[:1], slope]), axis=0)
+        means.append((spl(t_b) - spl(t_a)) / T)
+        if shift_rates:
+            rates.append((spl(t_b + h) - spl(t_a + h) - spl(t_b - h) + spl(t_a - h))
+                         / (2 * h * T))
+    return t_a, t_b, means + rates
+
+
 def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
                     bias: FloatArray, dt_s: float, select: NDArray[np.intp]
                     ) -> tuple[float, float]:
@@ -451,13 +555,9 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
         Interval-mean rates.
     select : indices ``i`` (``>= n_win``) of the windows ending at sample ``i`` to use.
     """
-    n_win = max(1, int(round(LATENCY_WINDOW_S / dt_s)))
-    dtk, i = whole_windows(t_end_s, dt_s, n_win, select)
-    c = np.vstack([np.zeros((1, 3)), np.cumsum((w - bias) * dtk[:, None], axis=0)])
-    t_b = t_end_s[i]
-    t_a = t_end_s[i - n_win]  # the end of the interval before the window: its start
+    t_a, t_b, (wmv,) = window_means(t_end_s, dt_s, select, w - bias)
     T = t_b - t_a
-    wm = np.linalg.norm((c[i + 1] - c[i + 1 - n_win]) / T[:, None], axis=1)
+    wm = np.linalg.norm(wmv, axis=1)
     # the joint axes at the unshifted window middles: over +-60 ms they turn by a few
     # degrees at most, which changes |sum u_i dq_i| only where two joints move at once
     axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b)))
@@ -480,7 +580,7 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
     # sigma from the curvature of the cost: sigma^2 = 2 var(resid) / (N d2cost/ds2)
     curv = den / h ** 2 if den > 0 else 0.0
     # (x10: the residuals are correlated over many samples)
-    sig = 10 * math.sqrt(2 * b / (len(i) * curv)) if curv > 0 else MAX_LATENCY_S
+    sig = 10 * math.sqrt(2 * b / (len(t_a) * curv)) if curv > 0 else MAX_LATENCY_S
     return s, sig
 
 
@@ -491,15 +591,19 @@ GYRO_FIT_SD0 = np.array([*[_RAW['gyro_scale']] * 3, _RAW['gyro_asymmetry'],
                          *[_RAW['gyro_g_sensitivity']] * 3, _RAW['gyro_bias']])
 
 
-def _fit_gyros(fixture: Any, spline: CubicSpline, t_s: FloatArray, wi: FloatArray,
-               fi: FloatArray, block: NDArray[np.intp], noise_g: float, dt: float,
-               tol_rad: float) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
-    """Per gyro axis ``w_i = B_i . w_nom + ag_i |w_i| + G_i . f + bg_i`` over the samples at
-    instants ``t_s`` (latency applied): ``B`` and each axis' (beta, var) of
-    :func:`_cluster_lstsq`, beta = (B_i (3), ag_i, G_i (3), bg_i)."""
-    _, w_nom, _ = _rate_nominal(fixture, spline, t_s, tol_rad)
-    X = np.hstack([w_nom, np.zeros((len(t_s), 1)), fi, np.ones((len(t_s), 1))])
+def _fit_gyros(fixture: Any, spline: CubicSpline, win: tuple[FloatArray, ...], s: float,
+               block: NDArray[np.intp], noise_g: float, tol_rad: float
+               ) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
+    """Per gyro axis ``w_i = B_i . w_nom + ag_i |w_i| + G_i . f + bg_i`` over the windows
+    ``win = (t_a, t_b, w mean, f mean)`` of :func:`window_means` at the joint-stamp latency
+    ``s``: ``B`` and each axis' (beta, var) of :func:`_cluster_lstsq`, beta = (B_i (3), ag_i,
+    G_i (3), bg_i)."""
+    t_a, t_b, wm, fm = win
+    w_nom = window_rates(fixture, spline, t_a, t_b, s, tol_rad)
+    n = len(t_a)
+    X = np.hstack([w_nom, np.zeros((n, 1)), fm, np.ones((n, 1))])
     B = np.zeros((3, 3))
+    s2_floor = noise_g ** 2 / float(np.median(t_b - t_a))  # a window mean's white noise
     # two rounds: the asymmetry regressor |omega_i| is the body rate the previous round
     # predicts (B w_nom), never the measured |w_i| (the target itself: with one rotation
     # direction it took half the scale factor)
@@ -510,8 +614,7 @@ def _fit_gyros(fixture: Any, spline: CubicSpline, t_s: FloatArray, wi: FloatArra
             X[:, 3] = np.abs(w_nom @ B[i]) if B.any() else np.abs(w_nom[:, i])
             beta0 = np.zeros(8)
             beta0[i] = 1.0
-            fits.append(_cluster_lstsq(X, wi[:, i], block, beta0, GYRO_FIT_SD0,
-                                       noise_g ** 2 / dt))
+            fits.append(_cluster_lstsq(X, wm[:, i], block, beta0, GYRO_FIT_SD0, s2_floor))
         B = np.array([f_[0][0:3] for f_ in fits])
     return B, fits
 
@@ -535,48 +638,38 @@ def refine_latency(fixture: Any, spline: CubicSpline, t_end_s: FloatArray, w: Fl
     Each window's nominal mean body rate is the encoder rotation across it,
     ``rotvec(R(t_a + s)^T R(t_b + s)) / T`` (no derivative of the encoder record: see
     :func:`measure_latency`), plus the earth rate."""
-    n_win = max(1, int(round(LATENCY_WINDOW_S / dt_s)))
-    dtk, i = whole_windows(t_end_s, dt_s, n_win, select)
-    cw = np.vstack([np.zeros((1, 3)), np.cumsum(w * dtk[:, None], axis=0)])
-    cf = np.vstack([np.zeros((1, 3)), np.cumsum(f * dtk[:, None], axis=0)])
-    if len(i) < 50:
+    t_a, t_b, (wm, fm, Z, _) = window_means(t_end_s, dt_s, select, w, f, shift_rates=True)
+    if len(t_a) < 50:
         return s0, math.inf
-    t_b = t_end_s[i]
-    t_a = t_end_s[i - n_win]
-    T = (t_b - t_a)[:, None]
-    wm = (cw[i + 1] - cw[i + 1 - n_win]) / T
-    fm = (cf[i + 1] - cf[i + 1 - n_win]) / T
     B, asym, G, bias = model
-    om = fixture.site.omega_ie_enu
 
     def pred(s: float) -> FloatArray:
-        Ra = fixture.R_enu_imu(spline(t_a + s))
-        Rb = fixture.R_enu_imu(spline(t_b + s))
-        rot = Rotation.from_matrix(np.swapaxes(Ra, 1, 2) @ Rb).as_rotvec() / T
-        w_nom = rot + np.einsum('nki,k->ni', Rb, om)
-        bw = w_nom @ B.T
+        bw = window_rates(fixture, spline, t_a, t_b, s) @ B.T
         return bw + asym * np.abs(bw) + fm @ G.T + bias  # type: ignore[no-any-return]
 
+    # Gauss-Newton with an instrument: the Jacobian of pred is the encoder record's
+    # derivative, whose noise (0.4 mrad at 100 Hz: several rad/s^2 against a plan's ~1) both
+    # shrank every step (the fixed point with the gyro fit then crept, 0.1 ms a round) and
+    # the sigma; the gyros' own rate of change over a shifted window, Z, is what pred's
+    # Jacobian is without that noise (the gyros' noise in it is independent of the encoders')
     h = 1e-3
     s = s0
-    J = r = np.zeros((len(i), 3))
+    zj = 0.0
     for _ in range(iterations):
         p = pred(s)
         J = (pred(s + h) - pred(s - h)) / (2 * h)
-        r = wm - p
-        jj = float(np.sum(J * J))
-        if not jj > 0:
+        zj = float(np.sum(Z * J))
+        if not zj > 0:
             return s0, math.inf
-        step = float(np.sum(J * r)) / jj
+        step = float(np.sum(Z * (wm - p))) / zj
         s += step
         if abs(step) < 1e-7:
             break
     r = wm - pred(s)
-    jj = float(np.sum(J * J))
     block = ((t_b - t_b[0]) // BLOCK_S).astype(np.intp)
     g = np.zeros(int(block.max()) + 1)
-    np.add.at(g, block, np.sum(J * r, axis=1))
-    var = max(float(np.sum(g ** 2)), float(np.mean(r ** 2)) * jj) / jj ** 2
+    np.add.at(g, block, np.sum(Z * r, axis=1))
+    var = max(float(np.sum(g ** 2)), float(np.mean(r ** 2)) * float(np.sum(Z * Z))) / zj ** 2
     return s, math.sqrt(var)
 
 
@@ -972,12 +1065,13 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
             f'{fixture.joint_names[j]} {zero[j] * 1e3:+.3f} +- {zero_sig[j] * 1e3:.3f} mrad'
             for j in np.flatnonzero(zero)))
     # --- samples used by the regressions: inside the joint record, thinned if very many
-    inside = (ts - dt > tj[0] + MAX_LATENCY_S) & (ts < tj[-1] - MAX_LATENCY_S)
+    # (the gyro fit's windows start a window and a sample before theirs)
+    inside = ((ts - 2 * dt - LATENCY_WINDOW_S > tj[0] + MAX_LATENCY_S)
+              & (ts < tj[-1] - MAX_LATENCY_S))
     idx = np.nonzero(inside)[0]
     if len(idx) > max_samples:
         idx = idx[np.linspace(0, len(idx) - 1, max_samples).astype(np.intp)]
-    t_mid = ts[idx] - 0.5 * dt  # an interval mean describes its mid-point (to dt^2)
-    wi, fi = w[idx], f[idx]
+    wi = w[idx]
     bias0 = np.median([win.gyro_mean_rad_s for win in wins], axis=0) if wins \
         else np.zeros(3)
     # --- time offset (item 4)
@@ -1001,13 +1095,18 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # that fit (refine_latency: the magnitudes are blind to what the scale factors and the
     # asymmetry do to them, 1.7 +- 1.6 ms off on a tactical unit turned at 60 deg/s), and
     # the gyros once more at the refined latency
-    block = ((t_mid - t_mid[0]) // BLOCK_S).astype(np.intp)
+    # the gyro fit on the same 40 ms windows as the latency (window_means, window_rates: no
+    # derivative of the encoder record, whose noise would be a regressor error that moves
+    # with the latency); their white noise is the gyros' over 40 ms
+    t_a, t_b, (wm, fm) = window_means(ts, dt, idx, w, f)
+    win = (t_a, t_b, wm, fm)
+    block = ((t_b - t_b[0]) // BLOCK_S).astype(np.intp)
     # the fixed point of "fit the gyros at s, refine s through that fit": a fit at a latency
     # far off (14 ms on a plan of quick 90 deg moves) is itself distorted, and one refinement
     # goes only part of the way (to 4.4 ms; each further round removes ~60 %), so the fixed
     # point is found by the secant method on g(s) = F(s) - s
     def F(x: float) -> tuple[float, float]:
-        B_, fits_ = _fit_gyros(fixture, spline, t_mid + x, wi, fi, block, noise_g, dt, tol_rad)
+        B_, fits_ = _fit_gyros(fixture, spline, win, x, block, noise_g, tol_rad)
         return refine_latency(fixture, spline, ts, w, f, dt, mv, x, _gyro_model(B_, fits_))
 
     x0, g0 = s, 0.0
@@ -1027,9 +1126,9 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
             x0, g0 = x1, g1
             x1, r, r_sig = x2, r2, r2_sig
         s, s_sig = r, r_sig
-    B, fits = _fit_gyros(fixture, spline, t_mid + s, wi, fi, block, noise_g, dt, tol_rad)
+    B, fits = _fit_gyros(fixture, spline, win, s, block, noise_g, tol_rad)
     latency = s  # joint stamp = instant + latency
-    _, w_nom, _ = _rate_nominal(fixture, spline, t_mid + latency, tol_rad)
+    w_nom = window_rates(fixture, spline, t_a, t_b, latency, tol_rad)
     theta_g = np.zeros(em.N_GYRO)
     sig_g = np.full(em.N_GYRO, np.inf)
     sB = np.zeros((3, 3))
@@ -1044,16 +1143,23 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
         sig_g[c:c + 3] = sd[4:7]
         theta_g[em.gyro_cols('gyro_bias').start + i] = beta[7]
         sig_g[em.gyro_cols('gyro_bias').start + i] = sd[7]
-    # the fit must explain the rotations: a residual far above the white noise and above
-    # 1 % of the rates means the fixture (axes, joint order) does not describe this table
-    resid = np.column_stack([wi[:, i] - (w_nom @ B[i] + theta_g[em.gyro_cols('gyro_bias')][i])
-                             - theta_g[em.gyro_cols('gyro_asymmetry')][i] * np.abs(w_nom @ B[i])
-                             for i in range(3)])
-    rms = float(np.sqrt(np.mean(resid[moving] ** 2))) if moving.any() else 0.0
-    rate_rms = float(np.sqrt(np.mean(wi[moving] ** 2))) if moving.any() else 0.0
-    if rms > max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms):
-        _, _, enc_mag = _rate_nominal(fixture, spline, t_mid + latency, tol_rad)
-        ratio = float(np.median(enc_mag[moving] / np.linalg.norm(wi[moving] - bias0, axis=1)))
+    # the fit must explain the rotations: a residual far above the white noise, above the
+    # encoders' own noise over a window and above 2 % of the rates means the fixture (axes,
+    # joint order) does not describe this table
+    _, asym_g, G_g, bias_g = _gyro_model(B, fits)
+    bw = w_nom @ B.T
+    resid = wm - (bw + asym_g * np.abs(bw) + fm @ G_g.T + bias_g)
+    mov_w = np.linalg.norm(wm - bias0, axis=1) > max(20 * noise_g / math.sqrt(dt), 1e-3)
+    rms = float(np.sqrt(np.mean(resid[mov_w] ** 2))) if mov_w.any() else 0.0
+    rate_rms = float(np.sqrt(np.mean(wm[mov_w] ** 2))) if mov_w.any() else 0.0
+    enc_noise = encoder_rate_noise(q_joint, float(np.median(t_b - t_a)))
+    if rms > max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms) + 3 * enc_noise:
+        # the encoder rate magnitude from angle differences (a rotation vector would wrap at
+        # pi: degrees turn 57 times as far)
+        dq = (spline(t_b + latency) - spline(t_a + latency)) / (t_b - t_a)[:, None]
+        axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b) + latency))
+        enc_mag = np.linalg.norm(np.einsum('nj,njk->nk', dq, axes), axis=1)
+        ratio = float(np.median(enc_mag[mov_w] / np.linalg.norm(wm[mov_w] - bias0, axis=1)))
         if abs(ratio * math.pi / 180.0 - 1.0) < 0.1:  # frame-free, as the guard's deg/s test
             raise ValueError(f'the joint positions look like degrees, not radians (the encoder '
                              f'rates are {ratio:.1f} times the gyro rates): publish '

@@ -28,8 +28,8 @@ from ..input_guard import IMU_REASONS
 from ..rotation import skew
 from ..types import ImuBatch, JointBatch, JointSample
 from . import error_model as em
-from .buffers import encoder_quantum_rad
-from .coarse import least_reach, pair_walk, still_spans, walk_threshold
+from .buffers import encoder_noise_rad, encoder_quantum_rad
+from .coarse import least_reach, pair_walk, settled, still_spans, walk_threshold
 from .estimator import RAW_PRIOR
 from .selfcheck import (NisTotals, RunEvidence, SelfCheckConfig, Verdict, WindowStatistics,
                         judge, window_statistics)
@@ -330,10 +330,22 @@ class RunLedger:
         b1 = np.searchsorted(t_bin, t1s - BIN_NS // 2, side='right')
         out = []
         for i in np.flatnonzero((k1 - k0 >= 10) & (b1 > b0)).tolist():
-            s = sums[b0[i]:b1[i]].sum(axis=0)
+            t0, t1, q_win = spans[i]
+            rows = sums[b0[i]:b1[i]]
+            # and to where the gyros show rest (a move's tail within the joints' tolerance)
+            lo, hi = settled(rows[:, 1:4] / np.maximum(rows[:, 0:1], 1.0))
+            if (lo, hi) != (0, len(rows)):
+                rows = rows[lo:hi]
+                t0 = max(t0, int(t_bin[b0[i] + lo]) - BIN_NS // 2)
+                t1 = min(t1, int(t_bin[b0[i] + hi - 1]) + BIN_NS // 2)
+                jt = self._jt_buf[:self._jn]
+                j0, j1 = np.searchsorted(jt, [t0, t1])
+                if j1 <= j0:
+                    continue
+                q_win = self._jq_buf[j0:j1 + 1].mean(axis=0)
+            s = rows.sum(axis=0)
             if s[0] < 10:
                 continue
-            t0, t1, q_win = spans[i]
             out.append((t0, t1, q_win, s[1:4] / s[0], s[4:7] / s[0], int(s[0])))
         if len(out) > MAX_WINDOWS:
             keep = sorted(sorted(range(len(out)), key=lambda i: -out[i][5])[:MAX_WINDOWS])
@@ -448,7 +460,16 @@ class RunLedger:
         # window's length: gravity seen at that attitude error (0.1 mrad steps: 29 urad rms,
         # 28 ug, where a navigation unit's 20 s window mean is good to 1 ug; its windows'
         # chi2/dof came out 5.56 and refused a calibration within 2.4 sigma of the truth)
-        var_f = step_attitude_variance(fx, q, fm, encoder_quantum_rad(self._jq_buf[:self._jn]))
+        # and a noisy encoder's window mean is off by its noise over the window's joint
+        # states (0.1 mrad at 100 Hz over 20 s: 2.2 urad, 2 ug, twice a navigation unit's
+        # 20 s noise; its windows' chi2/dof came out 1.38 on srt_then_kozlov)
+        jq = self._jq_buf[:self._jn]
+        jt = self._jt_buf[:self._jn]
+        m_j = (np.searchsorted(jt, [x[1] for x in wins], side='right')
+               - np.searchsorted(jt, [x[0] for x in wins]))
+        var_q = (encoder_quantum_rad(jq) ** 2 / 12.0
+                 + encoder_noise_rad(jq) ** 2 / np.maximum(m_j, 1)[:, None])
+        var_f = step_attitude_variance(fx, q, fm, var_q)
         sigma = np.column_stack([np.repeat((n_g / np.sqrt(T))[:, None], 3, 1),
                                  np.sqrt((n_a / np.sqrt(T))[:, None] ** 2 + var_f)])
         resid, nuis = window_nuisance_fit(
@@ -471,16 +492,19 @@ class RunLedger:
 
 
 def step_attitude_variance(fixture: Any, q: FloatArray, f: FloatArray,
-                           step_rad: FloatArray) -> FloatArray:
+                           var_rad2: FloatArray) -> FloatArray:
     """Variance (K, 3) of each window's specific force ``f`` (K, 3, IMU frame) from the
-    encoders' steps: joint ``j`` at rest is off by ``step_j / sqrt(12)`` rms about its axis
-    ``u_j``, which turns gravity in the IMU frame by ``dtheta x f``: ``[f x] C [f x]^T``,
-    ``C = sum_j step_j^2 / 12 u_j u_j^T`` (IMU frame at the window's angles ``q``)."""
-    if not np.any(step_rad):
+    encoders' error at rest, ``var_rad2`` per joint (n,) or per window and joint (K, n): a
+    step ``s`` leaves ``s^2 / 12``, noise ``sigma`` over ``m`` states ``sigma^2 / m``. Joint
+    ``j`` off by ``dtheta_j`` about its axis ``u_j`` turns gravity in the IMU frame by
+    ``dtheta x f``: ``[f x] C [f x]^T``, ``C = sum_j var_j u_j u_j^T`` (IMU frame at the
+    window's angles ``q``)."""
+    var = np.broadcast_to(np.asarray(var_rad2, float), (len(q), np.shape(q)[1]))
+    if not np.any(var):
         return np.zeros_like(f)
     axes = fixture.angular_axes_enu(q)  # (K, n, 3), ENU
     u = np.einsum('kji,knj->kni', fixture.R_enu_imu(q), axes)  # R^T u: IMU frame
-    C = np.einsum('n,kni,knj->kij', np.asarray(step_rad, float) ** 2 / 12.0, u, u)
+    C = np.einsum('kn,kni,knj->kij', var, u, u)
     S = skew(f)
     return np.einsum('kii->ki', S @ C @ np.swapaxes(S, 1, 2))  # type: ignore[no-any-return]
 
