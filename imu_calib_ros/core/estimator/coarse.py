@@ -461,6 +461,11 @@ def encoder_rate_noise(q_joint: FloatArray, window_s: float) -> float:
 
 
 LATENCY_WINDOW_S = 0.04  # rates compared as means over this many seconds (see below)
+#: the gyro fit's windows (:func:`_fit_gyros`): the encoders' noise across a window is a
+#: regressor error that dilutes the scale factors by its variance over the rates' (0.4 mrad
+#: over 40 ms: -200 to -350 ppm on a consumer unit, 2 of the fit's sigmas), 25x less over
+#: 0.2 s; the latency wants the short windows (its signal is the rates' change)
+FIT_WINDOW_S = 0.2
 LATENCY_ROUNDS = 6  # most rounds of the gyro fit and refine_latency at its latency
 
 
@@ -487,9 +492,10 @@ _PHASE_STEP = 0.5 * (math.sqrt(5.0) - 1.0)
 
 
 def window_means(t_end_s: FloatArray, dt_s: float, select: NDArray[np.intp],
-                 *series: FloatArray, shift_rates: bool = False
+                 *series: FloatArray, shift_rates: bool = False,
+                 window_s: float = LATENCY_WINDOW_S
                  ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
-    """Windows of about :data:`LATENCY_WINDOW_S` over the IMU record for the latency and gyro
+    """Windows of about ``window_s`` over the IMU record for the latency and gyro
     fits: their start and end instants ``t_a``, ``t_b`` and each series' mean over
     ``[t_a, t_b]``; with ``shift_rates``, after the means, each mean's rate of change with a
     shift of the window, ``d/dh mean[t_a + h, t_b + h]`` (over ``h = +-dt/2``).
@@ -508,7 +514,7 @@ def window_means(t_end_s: FloatArray, dt_s: float, select: NDArray[np.intp],
     A window's ends lie inside whole intervals (:func:`whole_windows`), with one whole
     interval more on each side; ``select`` are indices of the intervals holding ``t_b``.
     """
-    n_win = max(1, int(round(LATENCY_WINDOW_S / dt_s)))
+    n_win = max(1, int(round(window_s / dt_s)))
     sel = np.asarray(select, np.intp)
     dtk, j = whole_windows(t_end_s, dt_s, n_win + 3, sel[sel < len(t_end_s) - 1] + 1)
     i = j - 1
@@ -1066,7 +1072,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
             for j in np.flatnonzero(zero)))
     # --- samples used by the regressions: inside the joint record, thinned if very many
     # (the gyro fit's windows start a window and a sample before theirs)
-    inside = ((ts - 2 * dt - LATENCY_WINDOW_S > tj[0] + MAX_LATENCY_S)
+    inside = ((ts - 2 * dt - FIT_WINDOW_S > tj[0] + MAX_LATENCY_S)
               & (ts < tj[-1] - MAX_LATENCY_S))
     idx = np.nonzero(inside)[0]
     if len(idx) > max_samples:
@@ -1098,7 +1104,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # the gyro fit on the same 40 ms windows as the latency (window_means, window_rates: no
     # derivative of the encoder record, whose noise would be a regressor error that moves
     # with the latency); their white noise is the gyros' over 40 ms
-    t_a, t_b, (wm, fm) = window_means(ts, dt, idx, w, f)
+    t_a, t_b, (wm, fm) = window_means(ts, dt, idx, w, f, window_s=FIT_WINDOW_S)
     win = (t_a, t_b, wm, fm)
     block = ((t_b - t_b[0]) // BLOCK_S).astype(np.intp)
     # the fixed point of "fit the gyros at s, refine s through that fit": a fit at a latency
