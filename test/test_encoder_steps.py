@@ -105,3 +105,36 @@ def test_plain_command_with_14_bit_steps(tmp_path: Path) -> None:
                                          tmp_path / 'c.yaml')
     assert rc == 0 and worst is not None, err
     assert abs(worst.z) < 4.0, (worst.name, worst.z)
+
+
+def test_12_bit_steps_are_named_in_the_refusal(tmp_path: Path) -> None:
+    """1.53 mrad steps (12 bits a turn) under a tactical unit: refused (updates gated in
+    the turns), and the one line names the encoders' steps beside the failed check
+    (``RunLedger.encoder_hint``: before, only the gated updates were named)."""
+    from msg_adapters.bag import read_bag, write_bag
+
+    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
+    bag, truth = make_case(tmp_path, unit='tactical', size=1.0, mount_deg=3.0, seed=37)
+    imu, joints = read_bag(bag)
+    step = 2 * np.pi / 2 ** 12
+    joints.positions_rad[:] = np.round(joints.positions_rad / step) * step
+    joints = dataclasses.replace(joints, velocities_rad_s=None)
+    coarse = tmp_path / 'steps12.mcap'
+    write_bag(coarse, imu, joints)
+    out = tmp_path / 'c.yaml'
+    rc, err, _ = plain_command_worst(coarse, truth.fixture_path, truth.data, out)
+    lines = err.strip().splitlines()
+    assert rc != 0 and not out.exists() and len(lines) == 1, lines
+    assert 'the joint encoders read 1.53 mrad steps' in lines[0], lines
+
+
+def test_the_encoder_clause() -> None:
+    """One wording for the coarse start's rate-fit line and the self-check's refusal: steps
+    and noise named only past what the plain command is checked on."""
+    from imu_calib_ros.core.estimator.buffers import (ENCODER_NOISE_CHECKED_RAD,
+                                                      ENCODER_STEP_CHECKED_RAD, encoder_clause)
+    assert encoder_clause(ENCODER_NOISE_CHECKED_RAD, ENCODER_STEP_CHECKED_RAD) == ''
+    both = encoder_clause(1e-3, 1.5e-3)
+    assert both.startswith('the joint encoders read 1.50 mrad steps and 1.00 mrad of noise'
+                           ' at rest, more than the 0.40 mrad steps'), both
+    assert 'steps' not in encoder_clause(1e-3, 0.0).split(', more')[0]

@@ -310,7 +310,7 @@ def run(args: Any) -> int:
         if not verdict.passed and not args.force:
             lacks = _joints_the_fixture_lacks(args, fixture)  # the likeliest cause, if so
             raise SelfCheckError(f'{verdict.line}{_weak_plan_hint(run_, fixture)}'
-                                 f'{run_.estimator.stamp_hint()}{run_.estimator.encoder_hint()}'
+                                 f'{run_.estimator.stamp_hint()}{run_.ledger.encoder_hint()}'
                                  f'{"; " * bool(lacks)}{lacks}; '
                                  'no calibration written (--force writes it, marked as '
                                  'failing)')

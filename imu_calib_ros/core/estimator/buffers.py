@@ -490,13 +490,31 @@ def point_to_mean(w: FloatArray, f: FloatArray,
 _SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
 
 
-#: the most encoder noise at rest the plain command is checked on for every plan tried
-#: (session 21: 50 urad under navigation, tactical and industrial units on demo_short,
-#: srt_then_kozlov and savage_srt; 0.1-0.2 mrad passed on demo_short, but on savage_srt an
-#: industrial unit with 0.1 mrad had its joint latency 3.4 ms off and was refused, and so was
-#: a consumer unit with 0.4 mrad on demo_short, 4.2 ms off),
-#: :meth:`.estimator.CalibrationEstimator.encoder_hint` and the coarse start's rate-fit line
-ENCODER_NOISE_CHECKED_RAD = 5e-5
+#: the most encoder noise at rest and the coarsest encoder steps the plain command is
+#: checked on for every plan tried, named by a refusal beyond them (:func:`encoder_clause`).
+#: Session 22 (docs/WORLD.md): 0.4 mrad of noise passed under all four unit classes on
+#: demo_short, savage_srt@savage_2axis and srt_then_kozlov (1 mrad passed 4 of 4, max z
+#: 3.91); 14-bit steps (0.38 mrad) 4 of 4 and 13-bit 2 of 2, 12-bit (1.53 mrad) were refused
+#: 2 of 2. Session 21 had 50 urad and 0.1 mrad (the latency then read milliseconds off).
+ENCODER_NOISE_CHECKED_RAD = 4e-4
+ENCODER_STEP_CHECKED_RAD = 4e-4
+
+
+def encoder_clause(noise_rad: float, step_rad: float) -> str:
+    """``'the joint encoders read ... , more than the ... this command is checked on'`` when
+    their noise at rest or their steps are above :data:`ENCODER_NOISE_CHECKED_RAD` /
+    :data:`ENCODER_STEP_CHECKED_RAD`, else ''. The one wording of the coarse start's rate-fit
+    line and the self-check's refusal."""
+    what = []
+    if step_rad > ENCODER_STEP_CHECKED_RAD:
+        what.append(f'{step_rad * 1e3:.2f} mrad steps')
+    if noise_rad > ENCODER_NOISE_CHECKED_RAD:
+        what.append(f'{noise_rad * 1e3:.2f} mrad of noise at rest')
+    if not what:
+        return ''
+    return (f'the joint encoders read {" and ".join(what)}, more than the '
+            f'{ENCODER_STEP_CHECKED_RAD * 1e3:.2f} mrad steps and '
+            f'{ENCODER_NOISE_CHECKED_RAD * 1e3:.2f} mrad of noise this command is checked on')
 
 
 def encoder_noise_rad(q_rad: FloatArray) -> FloatArray:

@@ -404,27 +404,38 @@ def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: 
     return math.sqrt(pair_walk(tm, T, resid, white, i, j)[0])
 
 
-#: encoder steps above which a rate fit the fixture cannot explain may be the encoders'
-#: (session 21: 0.38 mrad steps, 14 bits a turn, left 2 % of a consumer unit's rates
-#: unexplained with the right fixture; 0.1 mrad steps pass); for their noise
-#: :data:`.buffers.ENCODER_NOISE_CHECKED_RAD`
-ENCODER_STEP_CHECKED_RAD = 1e-4
-
-
 def _coarse_encoders(q_joint: FloatArray) -> str:
-    """``' (or the encoders are too coarse: ...)'`` when the joint record's steps or noise
-    are above what the plain command is checked on (:data:`ENCODER_STEP_CHECKED_RAD`,
-    :data:`.buffers.ENCODER_NOISE_CHECKED_RAD`), else ''."""
-    from .buffers import ENCODER_NOISE_CHECKED_RAD, encoder_noise_rad, encoder_quantum_rad
+    """``' (or the joint encoders read ...)'`` when the joint record's steps or noise are
+    above what the plain command is checked on (:func:`.buffers.encoder_clause`), else ''."""
+    from .buffers import encoder_clause, encoder_noise_rad, encoder_quantum_rad
     step = float(np.max(encoder_quantum_rad(q_joint))) if len(q_joint) > 2 else 0.0
     noise = float(np.min(encoder_noise_rad(q_joint))) if len(q_joint) > 2 else 0.0
-    if step <= ENCODER_STEP_CHECKED_RAD and noise <= ENCODER_NOISE_CHECKED_RAD:
-        return ''
-    what = (f'{step * 1e3:.2f} mrad steps' if step > ENCODER_STEP_CHECKED_RAD
-            else f'{noise * 1e3:.2f} mrad of noise')
-    return (f' (or the joint encoders are too coarse for the rates: {what}, where the plain '
-            f'command is checked to {ENCODER_STEP_CHECKED_RAD * 1e3:.2f} mrad steps and '
-            f'{ENCODER_NOISE_CHECKED_RAD * 1e3:.2f} mrad of noise)')
+    clause = encoder_clause(noise, step)
+    return f' (or {clause})' if clause else ''
+
+
+#: share of the moving windows whose encoder rate magnitude is 180/pi times the gyros' (within
+#: 10 %) that says the joint positions are in degrees (:func:`_degrees_share`)
+DEGREES_SHARE = 0.2
+
+
+def _degrees_share(fixture: Fixture, spline: CubicSpline, t_a: FloatArray, t_b: FloatArray,
+                   gyro_mag: FloatArray) -> float:
+    """The share of the windows ``[t_a, t_b]`` in which the encoder rate magnitude is
+    180/pi times the gyros' (``gyro_mag``) within 10 %, at the shift (within
+    +-:data:`MAX_LATENCY_S`) where the most are. Frame-free; the encoder side from angle
+    differences (a rotation vector would wrap at pi: degrees turn 57 times as far). Not one
+    ratio: joint positions in degrees are unwrapped as if radians (a step above 3.14 deg
+    between joint states jumps by 360/(2 pi) of them), and in windows that hold such a
+    jump, or two joints whose axes the wrong angles turn apart, the ratio is anything (on a
+    20 Hz bag 5 to 69, median 43); a run in radians has no such windows at all."""
+    axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b)))
+    best = 0.0
+    for s in np.arange(-MAX_LATENCY_S, MAX_LATENCY_S + 1e-12, 4e-3):
+        dq = (spline(t_b + s) - spline(t_a + s)) / (t_b - t_a)[:, None]
+        e = np.linalg.norm(np.einsum('nj,njk->nk', dq, axes), axis=1)
+        best = max(best, float(np.mean(np.abs(e / gyro_mag * math.pi / 180.0 - 1.0) < 0.1)))
+    return best
 
 
 def window_rates(fixture: Fixture, spline: CubicSpline, t_a: FloatArray, t_b: FloatArray,
@@ -1105,14 +1116,14 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # derivative of the encoder record, whose noise would be a regressor error that moves
     # with the latency); their white noise is the gyros' over 40 ms
     t_a, t_b, (wm, fm) = window_means(ts, dt, idx, w, f, window_s=FIT_WINDOW_S)
-    win = (t_a, t_b, wm, fm)
+    fit_win = (t_a, t_b, wm, fm)
     block = ((t_b - t_b[0]) // BLOCK_S).astype(np.intp)
     # the fixed point of "fit the gyros at s, refine s through that fit": a fit at a latency
     # far off (14 ms on a plan of quick 90 deg moves) is itself distorted, and one refinement
     # goes only part of the way (to 4.4 ms; each further round removes ~60 %), so the fixed
     # point is found by the secant method on g(s) = F(s) - s
     def F(x: float) -> tuple[float, float]:
-        B_, fits_ = _fit_gyros(fixture, spline, win, x, block, noise_g, tol_rad)
+        B_, fits_ = _fit_gyros(fixture, spline, fit_win, x, block, noise_g, tol_rad)
         return refine_latency(fixture, spline, ts, w, f, dt, mv, x, _gyro_model(B_, fits_))
 
     x0, g0 = s, 0.0
@@ -1132,7 +1143,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
             x0, g0 = x1, g1
             x1, r, r_sig = x2, r2, r2_sig
         s, s_sig = r, r_sig
-    B, fits = _fit_gyros(fixture, spline, win, s, block, noise_g, tol_rad)
+    B, fits = _fit_gyros(fixture, spline, fit_win, s, block, noise_g, tol_rad)
     latency = s  # joint stamp = instant + latency
     w_nom = window_rates(fixture, spline, t_a, t_b, latency, tol_rad)
     theta_g = np.zeros(em.N_GYRO)
@@ -1160,16 +1171,12 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     rate_rms = float(np.sqrt(np.mean(wm[mov_w] ** 2))) if mov_w.any() else 0.0
     enc_noise = encoder_rate_noise(q_joint, float(np.median(t_b - t_a)))
     if rms > max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms) + 3 * enc_noise:
-        # the encoder rate magnitude from angle differences (a rotation vector would wrap at
-        # pi: degrees turn 57 times as far)
-        dq = (spline(t_b + latency) - spline(t_a + latency)) / (t_b - t_a)[:, None]
-        axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b) + latency))
-        enc_mag = np.linalg.norm(np.einsum('nj,njk->nk', dq, axes), axis=1)
-        ratio = float(np.median(enc_mag[mov_w] / np.linalg.norm(wm[mov_w] - bias0, axis=1)))
-        if abs(ratio * math.pi / 180.0 - 1.0) < 0.1:  # frame-free, as the guard's deg/s test
+        share = _degrees_share(fixture, spline, t_a[mov_w], t_b[mov_w],
+                               np.linalg.norm(wm[mov_w] - bias0, axis=1))
+        if share >= DEGREES_SHARE:  # frame-free, as the guard's deg/s test
             raise ValueError(f'the joint positions look like degrees, not radians (the encoder '
-                             f'rates are {ratio:.1f} times the gyro rates): publish '
-                             'JointState positions in rad')
+                             f'rates are 57.3 times the gyro rates in {100 * share:.0f} % of '
+                             'the turns): publish JointState positions in rad')
         raise ValueError(f'the gyro rates do not follow the fixture\'s joint rotations '
                          f'({rms:.3g} rad/s rms left after the best linear fit, '
                          f'{100 * rms / rate_rms:.0f} % of the rates): check the fixture file\'s '

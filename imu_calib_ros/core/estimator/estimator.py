@@ -55,8 +55,7 @@ from . import error_model as em
 from .alignment import (STILL_NOISE_SIGMAS, align, initial_covariance, level_coupling,
                         still_run, window_tolerance_rad)
 from .bootstrap import Bootstrap
-from .buffers import (ENCODER_NOISE_CHECKED_RAD, ImuBuffer, JointBuffer, encoder_noise_rad,
-                      point_to_mean)
+from .buffers import ImuBuffer, JointBuffer, encoder_noise_rad, point_to_mean
 from .coarse import BASE_TILT_PRIOR_RAD, CoarseStart, implausible, timing_group_size
 from .config import EstimatorConfig
 from .ekf import ErrorStateFilter
@@ -506,18 +505,10 @@ class CalibrationEstimator:
         g = self._guard
         return scatter_hint({'IMU': g.imu_clock, 'joint': g.joint_clock})
 
-    def encoder_hint(self) -> str:
-        """A clause naming the joint encoders' noise at rest when it is above what the plain
-        command has been shown to calibrate with (:data:`ENCODER_NOISE_CHECKED_RAD`), or ''.
-        Beyond it the joint-stamp latency is read off by milliseconds (the interpolated
-        encoder record's noise depends on where an instant falls between two joint stamps),
-        and a refusal then comes from updates gated in the turns."""
-        s = self._encoder_scatter_rad
-        if s <= ENCODER_NOISE_CHECKED_RAD:
-            return ''
-        return (f' (the joint encoders read {s * 1e3:.2f} mrad of noise at rest, more than the '
-                f'{ENCODER_NOISE_CHECKED_RAD * 1e3:.2f} mrad this command is checked on: '
-                'check the table\'s encoder resolution and its joint state publisher)')
+    @property
+    def encoder_noise_at_rest_rad(self) -> float:
+        """The joint encoders' noise in the (last) alignment window [rad], 0 before one."""
+        return self._encoder_scatter_rad
 
     def compensator(self) -> Callable[..., tuple[FloatArray, FloatArray]]:
         """A function ``(gyro (N,3), accel (N,3), omega_dot=None) -> (omega, f)`` that applies

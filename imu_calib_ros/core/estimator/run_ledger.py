@@ -28,7 +28,7 @@ from ..input_guard import IMU_REASONS
 from ..rotation import skew
 from ..types import ImuBatch, JointBatch, JointSample
 from . import error_model as em
-from .buffers import encoder_noise_rad, encoder_quantum_rad
+from .buffers import encoder_clause, encoder_noise_rad, encoder_quantum_rad
 from .coarse import least_reach, pair_walk, settled, still_spans, walk_threshold
 from .estimator import RAW_PRIOR
 from .selfcheck import (NisTotals, RunEvidence, SelfCheckConfig, Verdict, WindowStatistics,
@@ -269,6 +269,15 @@ class RunLedger:
         if self._jn < 2:
             return 0.0
         return float(np.diff(self._jt_buf[:self._jn]).max()) * 1e-9
+
+    def encoder_hint(self) -> str:
+        """A clause naming the joint encoders' noise at rest (the alignment window's) or their
+        steps (the joint record's) when above what the plain command is checked on
+        (:func:`.buffers.encoder_clause`), or ''."""
+        step = float(np.max(encoder_quantum_rad(self._jq_buf[:self._jn]), initial=0.0))
+        clause = encoder_clause(self.est.encoder_noise_at_rest_rad, step)
+        return (f' ({clause}: check the table\'s encoder resolution and its joint state '
+                'publisher)') if clause else ''
 
     def distinct_poses(self) -> int:
         """Distinct stationary poses of the run: its windows' joint angles, apart by more
