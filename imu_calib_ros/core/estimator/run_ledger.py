@@ -82,6 +82,8 @@ class RunLedger:
     def _reset_windows(self) -> None:
         self._origin: int | None = None
         self._bins = np.zeros((0, 7))  # count, gyro sum (3), accel sum (3)
+        # windows' cuts to rest (coarse.settled), by (t0, t1, bins, samples)
+        self._settled: dict[tuple[int, int, int, float], tuple[Any, ...]] = {}
         # the kept joint record: the first _jn rows of _jt_buf (stamps) and _jq_buf (unwrapped)
         self._jt_buf = np.zeros(0, np.int64)
         self._jq_buf = np.zeros((0, self.est.fixture.n_joints))
@@ -341,17 +343,28 @@ class RunLedger:
         for i in np.flatnonzero((k1 - k0 >= 10) & (b1 > b0)).tolist():
             t0, t1, q_win = spans[i]
             rows = sums[b0[i]:b1[i]]
-            # and to where the gyros show rest (a move's tail within the joints' tolerance)
-            lo, hi = settled(rows[:, 1:4] / np.maximum(rows[:, 0:1], 1.0))
-            if (lo, hi) != (0, len(rows)):
-                rows = rows[lo:hi]
-                t0 = max(t0, int(t_bin[b0[i] + lo]) - BIN_NS // 2)
-                t1 = min(t1, int(t_bin[b0[i] + hi - 1]) + BIN_NS // 2)
-                jt = self._jt_buf[:self._jn]
-                j0, j1 = np.searchsorted(jt, [t0, t1])
-                if j1 <= j0:
-                    continue
-                q_win = self._jq_buf[j0:j1 + 1].mean(axis=0)
+            # and to where the gyros show rest (a move's tail within the joints' tolerance);
+            # a closed window's bins no longer change: its cut is kept (the walk check reads
+            # the windows every minute: 0.7 s of an hour's replay without)
+            key = (t0, t1, len(rows), float(rows[:, 0].sum()))
+            cut = self._settled.get(key)
+            if cut is None:
+                lo, hi = settled(rows[:, 1:4] / np.maximum(rows[:, 0:1], 1.0))
+                if (lo, hi) == (0, len(rows)):
+                    cut = (lo, hi, t0, t1, q_win)
+                else:
+                    t0c = max(t0, int(t_bin[b0[i] + lo]) - BIN_NS // 2)
+                    t1c = min(t1, int(t_bin[b0[i] + hi - 1]) + BIN_NS // 2)
+                    j0, j1 = np.searchsorted(self._jt_buf[:self._jn], [t0c, t1c])
+                    cut = (lo, hi, t0c, t1c,
+                           self._jq_buf[j0:j1 + 1].mean(axis=0) if j1 > j0 else None)
+                if len(self._settled) > 10_000:
+                    self._settled.clear()
+                self._settled[key] = cut
+            lo, hi, t0, t1, q_win = cut
+            if q_win is None:
+                continue
+            rows = rows[lo:hi]
             s = rows.sum(axis=0)
             if s[0] < 10:
                 continue
