@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imu_calib_ros.core.fixture import Fixture
+from imu_calib_ros.core.fixture import Fixture, load_fixture
 
 STEP_16_BIT = 2 * np.pi / 2 ** 16
 #: a step of the same size that a quarter turn is no whole number of (a 62,832-count
@@ -89,7 +89,7 @@ def test_plain_command_with_14_bit_steps(tmp_path: Path) -> None:
     """0.38 mrad steps (14 bits a turn) under a navigation unit: exit 0, every estimated
     parameter within 4 sigma. Refused until session 22: the coarse start's rate fit, on
     derivatives of the stepped record, left 2 % of the rates unexplained (against 2 % of the
-    rates allowed); it now fits 40 ms window rotations and allows for the encoders' own
+    rates allowed); it now fits 0.2 s window rotations and allows for the encoders' own
     rate noise (``coarse.encoder_rate_noise``)."""
     from msg_adapters.bag import read_bag, write_bag
 
@@ -124,7 +124,7 @@ def test_12_bit_steps_are_named_in_the_refusal(tmp_path: Path) -> None:
     out = tmp_path / 'c.yaml'
     rc, err, _ = plain_command_worst(coarse, truth.fixture_path, truth.data, out)
     lines = err.strip().splitlines()
-    assert rc != 0 and not out.exists() and len(lines) == 1, lines
+    assert rc == 3 and not out.exists() and len(lines) == 1, lines
     assert 'the joint encoders read 1.53 mrad steps' in lines[0], lines
 
 
@@ -138,3 +138,36 @@ def test_the_encoder_clause() -> None:
     assert both.startswith('the joint encoders read 1.50 mrad steps and 1.00 mrad of noise'
                            ' at rest, more than the 0.40 mrad steps'), both
     assert 'steps' not in encoder_clause(1e-3, 0.0).split(', more')[0]
+
+
+def test_the_ledgers_hint_names_noise_and_steps() -> None:
+    """``RunLedger.encoder_hint`` (the self-check refusal's clause): the joint record's
+    steps and the alignment window's noise at rest, each named past what is checked; a
+    record within both gives no clause."""
+    from dataclasses import dataclass
+    from typing import Any
+
+    from imu_calib_ros.core.estimator.config import EstimatorConfig
+    from imu_calib_ros.core.estimator.run_ledger import RunLedger
+    from imu_calib_ros.core.types import JointBatch
+
+    @dataclass
+    class _Est:
+        fixture: Any
+        config: EstimatorConfig
+        encoder_noise_at_rest_rad: float
+        is_running: bool = False
+
+    fx = load_fixture('three_axis')
+    t = (np.arange(2000) * 1e7).astype(np.int64) + 10 ** 18
+    q = np.column_stack([0.3 * np.sin(np.arange(2000) / 300.0)] * 3)
+
+    def hint(noise: float, step: float) -> str:
+        led = RunLedger(_Est(fx, EstimatorConfig(), noise))
+        led.joints(JointBatch(t, tuple(fx.joint_names),
+                              np.round(q / step) * step if step else q))
+        return led.encoder_hint()
+
+    assert hint(1e-4, 0.0) == ''
+    assert 'read 1.53 mrad steps and 1.00 mrad of noise at rest' in hint(1e-3, 2 * np.pi / 2 ** 12)
+    assert 'read 0.60 mrad of noise at rest' in hint(6e-4, 0.0)

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
+from scipy.interpolate import CubicSpline
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
@@ -197,33 +197,39 @@ class CoarseStart:
 
 #: a still window's leading and trailing 0.1 s bins whose gyro means stand out from the
 #: window's median by more than this many robust sigmas are a move's tail (:func:`settled`)
-SETTLE_SIGMAS = 5.0
+SETTLE_SIGMAS = 6.0
 SETTLE_BIN_S = 0.1
 
 
 def settled(g_bins: FloatArray) -> tuple[int, int]:
-    """The bins ``[lo, hi)`` of a still window that the gyros show at rest: leading and
-    trailing bins whose mean rate (``g_bins`` (n, 3), one row per :data:`SETTLE_BIN_S`)
-    stands out from the window's median by more than :data:`SETTLE_SIGMAS` robust sigmas
-    (1.4826 MAD over the bins) on any axis are cut, and one bin more on a side that was cut.
+    """The bins ``[lo, hi)`` of a still window that the gyros show at rest: bins whose mean
+    rate (``g_bins`` (n, 3), one row per :data:`SETTLE_BIN_S`) stand out from the window's
+    median by more than :data:`SETTLE_SIGMAS` sigmas on any axis are motion, and the window
+    is cut after the last of them in its first half and before the first in its second
+    half, one bin of margin more (a ringing tail whose first bin crosses zero is cut whole).
+    The sigma is 1.4826 MAD, at least half the bins' least step off the median (quantised
+    gyros leave most bins on the median: the MAD alone was 0 and cut rest at one step). A
+    cut may leave too little: the caller's least length decides.
 
     The joints' still test cannot see a move's last angle within its tolerance, and a
     tolerance raised by the encoders' own noise lets much of it in: at 0.2 mrad of noise
     (1.2 mrad tolerance) the windows took the last 0.1-0.4 s of the moves, 0.1-0.24 mrad of
     rotation, several deg/h on a navigation gyro's 10 s mean, and its windows' chi2/dof came
-    out 7.5. A window at rest has no standing-out bin at its ends but once in 10^6."""
+    out 7.5. A window at rest has a standing-out bin about once in 10^6 bins."""
     n = len(g_bins)
     if n < 5:
         return 0, n
     med = np.median(g_bins, axis=0)
     dev = np.abs(g_bins - med)
-    sig = np.maximum(1.4826 * np.median(dev, axis=0), 1e-12)
-    ok = np.flatnonzero(~np.any(dev > SETTLE_SIGMAS * sig, axis=1))
-    if not len(ok):
-        return 0, n
-    lo, hi = int(ok[0]), int(ok[-1]) + 1
-    lo, hi = lo + (lo > 0), hi - (hi < n)
-    return (lo, hi) if hi - lo >= n // 2 else (0, n)
+    # a quantised gyro's bins sit on a lattice: half its least step is the least sigma
+    step = np.min(np.where(dev > 0.0, dev, np.inf), axis=0)
+    sig = np.maximum(1.4826 * np.median(dev, axis=0),
+                     np.where(np.isfinite(step), 0.5 * step, 1e-12))
+    out = np.flatnonzero(np.any(dev > SETTLE_SIGMAS * sig, axis=1))
+    first, second = out[out < n // 2], out[out >= n // 2]
+    lo = int(first[-1]) + 2 if len(first) else 0
+    hi = int(second[0]) - 1 if len(second) else n
+    return lo, max(hi, lo)
 
 
 def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.int64],
@@ -242,12 +248,15 @@ def static_windows(t_ns: NDArray[np.int64], q: FloatArray, t_imu_ns: NDArray[np.
         nb = (k1 - k0) // per_bin
         lo, hi = settled(w[k0:k0 + nb * per_bin].reshape(nb, per_bin, 3).mean(axis=1))
         if (lo, hi) != (0, nb):
+            if hi - lo < 1:
+                continue
             k0, k1 = k0 + lo * per_bin, k0 + hi * per_bin
             t0, t1 = int(t_imu_ns[k0]), int(t_imu_ns[k1 - 1])
-            j0, j1 = np.searchsorted(t_ns, [t0, t1])
+            # the joint states inside the cut only (the next one is in the cut tail)
+            j0, j1 = np.searchsorted(t_ns, [t0, t1], side='right')
             if (t1 - t0) * 1e-9 < min_static_s or j1 <= j0:
                 continue
-            q_mean = q[j0:j1 + 1].mean(axis=0)
+            q_mean = q[j0:j1].mean(axis=0)
         out.append(StaticWindow(t0, t1, q_mean, w[k0:k1].mean(axis=0), f[k0:k1].mean(axis=0),
                                 int(k1 - k0)))
     return out
@@ -527,6 +536,9 @@ def window_means(t_end_s: FloatArray, dt_s: float, select: NDArray[np.intp],
     """
     n_win = max(1, int(round(window_s / dt_s)))
     sel = np.asarray(select, np.intp)
+    # windows ending in interval i (t_b) and starting in interval i - n_win (t_a), each end
+    # +- dt/2 for the shift rates: intervals i - n_win - 1 .. i + 1 whole, i.e. the windows
+    # of n_win + 3 intervals ending at i + 1 (whole_windows)
     dtk, j = whole_windows(t_end_s, dt_s, n_win + 3, sel[sel < len(t_end_s) - 1] + 1)
     i = j - 1
     nodes = np.concatenate([[t_end_s[0] - dtk[0]], t_end_s])
@@ -541,13 +553,30 @@ def window_means(t_end_s: FloatArray, dt_s: float, select: NDArray[np.intp],
     for x in series:
         x = np.asarray(x, dtype=float)
         c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x * dtk[:, None], axis=0)])
-        slope = np.where(nxt_whole[:, None], 0.5 * (x + np.roll(x, -1, axis=0)), x)
-        spl = CubicHermiteSpline(nodes, c, np.vstack([x[:1], slope]), axis=0)
-        means.append((spl(t_b) - spl(t_a)) / T)
+        m = np.vstack([x[:1], np.where(nxt_whole[:, None],
+                                       0.5 * (x + np.roll(x, -1, axis=0)), x)])
+
+        def at(t: FloatArray) -> FloatArray:
+            return _hermite_at(nodes, c, m, t)
+        means.append((at(t_b) - at(t_a)) / T)
         if shift_rates:
-            rates.append((spl(t_b + h) - spl(t_a + h) - spl(t_b - h) + spl(t_a - h))
+            rates.append((at(t_b + h) - at(t_a + h) - at(t_b - h) + at(t_a - h))
                          / (2 * h * T))
     return t_a, t_b, means + rates
+
+
+def _hermite_at(nodes: FloatArray, c: FloatArray, m: FloatArray, t: FloatArray
+                ) -> FloatArray:
+    """The cubic Hermite interpolant of values ``c`` (N, k) with slopes ``m`` at ``nodes``,
+    at instants ``t`` inside them: the interval's two nodes only. By hand because scipy's
+    ``CubicHermiteSpline`` builds every interval's coefficients, 440 MB and 1.2 s a call
+    on a 1 kHz record of 17 minutes, where a few thousand windows are read."""
+    k = np.clip(np.searchsorted(nodes, t, side='right') - 1, 0, len(nodes) - 2)
+    d = (nodes[k + 1] - nodes[k])[:, None]
+    u = ((t - nodes[k])[:, None]) / d
+    u2, u3 = u * u, u * u * u
+    return ((2 * u3 - 3 * u2 + 1) * c[k] + (u3 - 2 * u2 + u) * d * m[k]
+            + (3 * u2 - 2 * u3) * c[k + 1] + (u3 - u2) * d * m[k + 1])
 
 
 def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, w: FloatArray,
@@ -556,13 +585,14 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
     """Shift ``s`` [s] with ``|mean w - bias| ~ |mean encoder rate|`` over the same window
     shifted by ``s`` (joint stamp = instant + ``s``), and its sigma.
 
-    Both sides are means over ``N`` whole IMU intervals (about :data:`LATENCY_WINDOW_S`): the
-    gyro side exactly (the sum of ``N`` interval means is the integral over their union), the
-    encoder side as the angle difference across the window, ``(q(t_b + s) - q(t_a + s)) / T``.
-    A derivative of the interpolated encoder angles would not do: its noise variance changes
-    with where ``t + s`` falls between two joint stamps, a term of the cost that moves its
-    minimum (13.5 urad of encoder noise at 100 Hz biased the shift by 1-3 ms, a milliradian of
-    attitude at 1 rad/s); over a 40 ms window that term is 25x smaller than its signal.
+    Both sides are means over the windows of :func:`window_means` (about
+    :data:`LATENCY_WINDOW_S`, ends at evenly spread sub-sample phases): the gyro side from
+    the integral of the interval means, the encoder side as the angle difference across the
+    window, ``(q(t_b + s) - q(t_a + s)) / T``. A derivative of the interpolated encoder
+    angles would not do: its noise variance changes with where ``t + s`` falls between two
+    joint stamps, a term of the cost that moves its minimum (13.5 urad of encoder noise at
+    100 Hz biased the shift by 1-3 ms, a milliradian of attitude at 1 rad/s); over a 40 ms
+    window that term is 25x smaller than its signal, and the spread phases average it out.
 
     Parameters
     ----------
@@ -570,7 +600,8 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
         End instants of every IMU interval (consecutive samples).
     w : (N, 3)
         Interval-mean rates.
-    select : indices ``i`` (``>= n_win``) of the windows ending at sample ``i`` to use.
+    select : indices ``i`` of the windows to use, ending in interval ``i``
+        (:func:`window_means`).
     """
     t_a, t_b, (wmv,) = window_means(t_end_s, dt_s, select, w - bias)
     T = t_b - t_a
@@ -1112,10 +1143,16 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     # that fit (refine_latency: the magnitudes are blind to what the scale factors and the
     # asymmetry do to them, 1.7 +- 1.6 ms off on a tactical unit turned at 60 deg/s), and
     # the gyros once more at the refined latency
-    # the gyro fit on the same 40 ms windows as the latency (window_means, window_rates: no
-    # derivative of the encoder record, whose noise would be a regressor error that moves
-    # with the latency); their white noise is the gyros' over 40 ms
-    t_a, t_b, (wm, fm) = window_means(ts, dt, idx, w, f, window_s=FIT_WINDOW_S)
+    # the gyro fit on windows of FIT_WINDOW_S, one after another (window_means,
+    # window_rates: no derivative of the encoder record, whose noise would be a regressor
+    # error that moves with the latency); each one's white noise is the gyros' over its
+    # length, independent of the next (windows ending at every sample overlapped 20-200
+    # times, and the fit's information read that many times too high)
+    n_fit = max(1, int(round(FIT_WINDOW_S / dt)))
+    fit_sel = np.nonzero(inside)[0][::n_fit]
+    if len(fit_sel) > max_samples:
+        fit_sel = fit_sel[np.linspace(0, len(fit_sel) - 1, max_samples).astype(np.intp)]
+    t_a, t_b, (wm, fm) = window_means(ts, dt, fit_sel, w, f, window_s=FIT_WINDOW_S)
     fit_win = (t_a, t_b, wm, fm)
     block = ((t_b - t_b[0]) // BLOCK_S).astype(np.intp)
     # the fixed point of "fit the gyros at s, refine s through that fit": a fit at a latency

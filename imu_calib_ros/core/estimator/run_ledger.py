@@ -352,12 +352,17 @@ class RunLedger:
                 lo, hi = settled(rows[:, 1:4] / np.maximum(rows[:, 0:1], 1.0))
                 if (lo, hi) == (0, len(rows)):
                     cut = (lo, hi, t0, t1, q_win)
+                elif hi - lo < 1:
+                    cut = (lo, hi, t0, t1, None)
                 else:
                     t0c = max(t0, int(t_bin[b0[i] + lo]) - BIN_NS // 2)
                     t1c = min(t1, int(t_bin[b0[i] + hi - 1]) + BIN_NS // 2)
-                    j0, j1 = np.searchsorted(self._jt_buf[:self._jn], [t0c, t1c])
+                    # the joint states inside the cut only (the next one is in the cut tail);
+                    # a cut shorter than the least window is none (as coarse.static_windows)
+                    j0, j1 = np.searchsorted(self._jt_buf[:self._jn], [t0c, t1c], side='right')
+                    keep = j1 > j0 and (t1c - t0c) * 1e-9 >= MIN_WINDOW_S
                     cut = (lo, hi, t0c, t1c,
-                           self._jq_buf[j0:j1 + 1].mean(axis=0) if j1 > j0 else None)
+                           self._jq_buf[j0:j1].mean(axis=0) if keep else None)
                 if len(self._settled) > 10_000:
                     self._settled.clear()
                 self._settled[key] = cut
