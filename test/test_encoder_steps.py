@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -68,21 +69,29 @@ def test_plain_command_on_a_table_with_coarse_steps(tmp_path: Path, seed: int) -
     """A navigation unit's world bag with the joint states rounded to 0.1 mrad steps (and no
     velocities, as an encoder count gives none): exit 0,
     every estimated parameter within 4 sigma (refused before: windows' chi2/dof 5.56)."""
-    from msg_adapters.bag import read_bag, write_bag
-
-    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
-    bag, truth = make_case(tmp_path, unit='nav', size=1.0, mount_deg=3.0, seed=seed)
-    imu, joints = read_bag(bag)
+    from imu_calib_ros.testing.world_cases import plain_command_worst
     # (with 2^16 steps per turn the plan's poses, quarter turns apart, are whole steps:
     # one constant error per joint, which the joints' zeros take up)
-    joints.positions_rad[:] = np.round(joints.positions_rad / STEP) * STEP
-    joints = dataclasses.replace(joints, velocities_rad_s=None)  # positions only, as counted
-    coarse = tmp_path / 'steps.mcap'
-    write_bag(coarse, imu, joints)
-    rc, err, worst = plain_command_worst(coarse, truth.fixture_path, truth.data,
+    bag, truth = _stepped(tmp_path, STEP, 'nav', seed)
+    rc, err, worst = plain_command_worst(bag, truth.fixture_path, truth.data,
                                          tmp_path / 'c.yaml')
     assert rc == 0 and worst is not None, err
     assert abs(worst.z) < 4.0, (worst.name, worst.z)
+
+
+def _stepped(tmp_path: Path, step: float, unit: str, seed: int) -> tuple[Path, Any]:
+    """A world bag (demo_short) whose joint positions are rounded to ``step`` [rad], without
+    velocities (an encoder count gives none): (bag, truth)."""
+    from msg_adapters.bag import read_bag, write_bag
+
+    from imu_calib_ros.testing.world_cases import make_case
+    bag, truth = make_case(tmp_path, unit=unit, size=1.0, mount_deg=3.0, seed=seed)
+    imu, joints = read_bag(bag)
+    joints.positions_rad[:] = np.round(joints.positions_rad / step) * step
+    joints = dataclasses.replace(joints, velocities_rad_s=None)
+    out = tmp_path / 'steps.mcap'
+    write_bag(out, imu, joints)
+    return out, truth
 
 
 def test_plain_command_with_14_bit_steps(tmp_path: Path) -> None:
@@ -91,17 +100,9 @@ def test_plain_command_with_14_bit_steps(tmp_path: Path) -> None:
     derivatives of the stepped record, left 2 % of the rates unexplained (against 2 % of the
     rates allowed); it now fits 0.2 s window rotations and allows for the encoders' own
     rate noise (``coarse.encoder_rate_noise``)."""
-    from msg_adapters.bag import read_bag, write_bag
-
-    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
-    bag, truth = make_case(tmp_path, unit='nav', size=1.0, mount_deg=3.0, seed=31)
-    imu, joints = read_bag(bag)
-    step = 2 * np.pi / 2 ** 14
-    joints.positions_rad[:] = np.round(joints.positions_rad / step) * step
-    joints = dataclasses.replace(joints, velocities_rad_s=None)
-    coarse = tmp_path / 'steps14.mcap'
-    write_bag(coarse, imu, joints)
-    rc, err, worst = plain_command_worst(coarse, truth.fixture_path, truth.data,
+    from imu_calib_ros.testing.world_cases import plain_command_worst
+    bag, truth = _stepped(tmp_path, 2 * np.pi / 2 ** 14, 'nav', 31)
+    rc, err, worst = plain_command_worst(bag, truth.fixture_path, truth.data,
                                          tmp_path / 'c.yaml')
     assert rc == 0 and worst is not None, err
     assert abs(worst.z) < 4.0, (worst.name, worst.z)
@@ -111,18 +112,10 @@ def test_12_bit_steps_are_named_in_the_refusal(tmp_path: Path) -> None:
     """1.53 mrad steps (12 bits a turn) under a tactical unit: refused (updates gated in
     the turns), and the one line names the encoders' steps beside the failed check
     (``RunLedger.encoder_hint``: before, only the gated updates were named)."""
-    from msg_adapters.bag import read_bag, write_bag
-
-    from imu_calib_ros.testing.world_cases import make_case, plain_command_worst
-    bag, truth = make_case(tmp_path, unit='tactical', size=1.0, mount_deg=3.0, seed=37)
-    imu, joints = read_bag(bag)
-    step = 2 * np.pi / 2 ** 12
-    joints.positions_rad[:] = np.round(joints.positions_rad / step) * step
-    joints = dataclasses.replace(joints, velocities_rad_s=None)
-    coarse = tmp_path / 'steps12.mcap'
-    write_bag(coarse, imu, joints)
+    from imu_calib_ros.testing.world_cases import plain_command_worst
+    bag, truth = _stepped(tmp_path, 2 * np.pi / 2 ** 12, 'tactical', 37)
     out = tmp_path / 'c.yaml'
-    rc, err, _ = plain_command_worst(coarse, truth.fixture_path, truth.data, out)
+    rc, err, _ = plain_command_worst(bag, truth.fixture_path, truth.data, out)
     lines = err.strip().splitlines()
     assert rc == 3 and not out.exists() and len(lines) == 1, lines
     assert 'the joint encoders read 1.53 mrad steps' in lines[0], lines
@@ -145,7 +138,6 @@ def test_the_ledgers_hint_names_noise_and_steps() -> None:
     steps and the alignment window's noise at rest, each named past what is checked; a
     record within both gives no clause."""
     from dataclasses import dataclass
-    from typing import Any
 
     from imu_calib_ros.core.estimator.config import EstimatorConfig
     from imu_calib_ros.core.estimator.run_ledger import RunLedger
