@@ -493,7 +493,7 @@ _SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)
 #: the most encoder noise at rest and the coarsest encoder steps the plain command is
 #: checked on for every plan tried, named by a refusal beyond them (:func:`encoder_clause`).
 #: Session 22 (docs/WORLD.md): 0.4 mrad of noise passed under all four unit classes on
-#: demo_short, savage_srt@savage_2axis and srt_then_kozlov (1 mrad passed 4 of 4, max z
+#: demo_short, savage_srt@savage_2axis and srt_then_kozlov (1 mrad passed 5 of 5, max z
 #: 3.91); 14-bit steps (0.38 mrad) 4 of 4 and 13-bit 2 of 2, 12-bit (1.53 mrad) were refused
 #: 2 of 2. Session 21 had 50 urad and 0.1 mrad (the latency then read milliseconds off).
 ENCODER_NOISE_CHECKED_RAD = 4e-4

@@ -47,6 +47,7 @@ from .. import parameters as registry
 from ..allan import overlapping_avar
 from ..rotation import skew
 from . import error_model as em
+from .buffers import encoder_clause, encoder_noise_rad, encoder_quantum_rad
 from .quantiles import t_isf
 
 if TYPE_CHECKING:
@@ -419,7 +420,6 @@ def _random_walk(wins: list[StaticWindow], resid: FloatArray, white: float, dt: 
 def _coarse_encoders(q_joint: FloatArray) -> str:
     """``' (or the joint encoders read ...)'`` when the joint record's steps or noise are
     above what the plain command is checked on (:func:`.buffers.encoder_clause`), else ''."""
-    from .buffers import encoder_clause, encoder_noise_rad, encoder_quantum_rad
     step = float(np.max(encoder_quantum_rad(q_joint))) if len(q_joint) > 2 else 0.0
     noise = float(np.min(encoder_noise_rad(q_joint))) if len(q_joint) > 2 else 0.0
     clause = encoder_clause(noise, step)
@@ -444,10 +444,17 @@ def _degrees_share(fixture: Fixture, spline: CubicSpline, t_a: FloatArray, t_b: 
     axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b)))
     best = 0.0
     for s in np.arange(-MAX_LATENCY_S, MAX_LATENCY_S + 1e-12, 4e-3):
-        dq = (spline(t_b + s) - spline(t_a + s)) / (t_b - t_a)[:, None]
-        e = np.linalg.norm(np.einsum('nj,njk->nk', dq, axes), axis=1)
+        e = _encoder_rate_magnitude(spline, axes, t_a, t_b, s)
         best = max(best, float(np.mean(np.abs(e / gyro_mag * math.pi / 180.0 - 1.0) < 0.1)))
     return best
+
+
+def _encoder_rate_magnitude(spline: CubicSpline, axes: FloatArray, t_a: FloatArray,
+                            t_b: FloatArray, s: float) -> FloatArray:
+    """``|sum_j u_j (q_j(t_b + s) - q_j(t_a + s))| / T`` over each window, the joint axes
+    ``axes`` (N, n, 3) fixed (frame-free; no rotation vector, which wraps at pi)."""
+    dq = (spline(t_b + s) - spline(t_a + s)) / (t_b - t_a)[:, None]
+    return np.linalg.norm(np.einsum('nj,njk->nk', dq, axes), axis=1)
 
 
 #: longest step of :func:`window_rates`' sum of encoder rotations across a window: each step's
@@ -494,7 +501,6 @@ def window_rates(fixture: Fixture, spline: CubicSpline, t_a: FloatArray, t_b: Fl
 def encoder_rate_noise(q_joint: FloatArray, window_s: float) -> float:
     """The rms per IMU axis that the encoders' own noise (or steps: ``q / sqrt(12)``) puts on
     :func:`window_rates` over ``window_s`` (two ends, joints' noise spread over 3 axes)."""
-    from .buffers import encoder_noise_rad, encoder_quantum_rad
     if len(q_joint) < 4:
         return 0.0
     sig = np.maximum(np.atleast_1d(encoder_noise_rad(q_joint)),
@@ -626,16 +632,13 @@ def measure_latency(fixture: Fixture, spline: CubicSpline, t_end_s: FloatArray, 
         (:func:`window_means`).
     """
     t_a, t_b, (wmv,) = window_means(t_end_s, dt_s, select, w - bias)
-    T = t_b - t_a
     wm = np.linalg.norm(wmv, axis=1)
     # the joint axes at the unshifted window middles: over +-60 ms they turn by a few
     # degrees at most, which changes |sum u_i dq_i| only where two joints move at once
     axes = fixture.angular_axes_enu(spline(0.5 * (t_a + t_b)))
 
     def cost(s: float) -> float:
-        dq = (spline(t_b + s) - spline(t_a + s)) / T[:, None]
-        e = np.linalg.norm(np.einsum('nj,njk->nk', dq, axes), axis=1)
-        return float(np.mean((wm - e) ** 2))
+        return float(np.mean((wm - _encoder_rate_magnitude(spline, axes, t_a, t_b, s)) ** 2))
 
     grid = np.arange(-MAX_LATENCY_S, MAX_LATENCY_S + 1e-12, 4e-3)
     cg = np.array([cost(s) for s in grid])
@@ -705,9 +708,8 @@ def refine_latency(fixture: Any, spline: CubicSpline, t_end_s: FloatArray, w: Fl
     fitted gyro ``model`` (``B``, asymmetry, ``G``, bias). Returns ``(s, sigma)``; sigma is
     cluster-robust over 1 s blocks (model error and encoder interpolation are not white).
 
-    Each window's nominal mean body rate is the encoder rotation across it,
-    ``rotvec(R(t_a + s)^T R(t_b + s)) / T`` (no derivative of the encoder record: see
-    :func:`measure_latency`), plus the earth rate."""
+    Each window's nominal mean body rate is :func:`window_rates` (the encoder rotation
+    across it, no derivative of the encoder record), plus the earth rate."""
     t_a, t_b, (wm, fm, Z, _) = window_means(t_end_s, dt_s, select, w, f, shift_rates=True)
     if len(t_a) < 50:
         return s0, math.inf
@@ -1228,8 +1230,9 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     mov_w = np.linalg.norm(wm - bias0, axis=1) > max(20 * noise_g / math.sqrt(dt), 1e-3)
     rms = float(np.sqrt(np.mean(resid[mov_w] ** 2))) if mov_w.any() else 0.0
     rate_rms = float(np.sqrt(np.mean(wm[mov_w] ** 2))) if mov_w.any() else 0.0
-    enc_noise = encoder_rate_noise(q_joint, float(np.median(t_b - t_a)))
-    if rms > max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms) + 3 * enc_noise:
+    base = max(20 * noise_g / math.sqrt(dt), 0.02 * rate_rms)
+    # (the encoders' noise read off the whole joint record only when the rest is exceeded)
+    if rms > base and rms > base + 3 * encoder_rate_noise(q_joint, float(np.median(t_b - t_a))):
         share = _degrees_share(fixture, spline, t_a[mov_w], t_b[mov_w],
                                np.linalg.norm(wm[mov_w] - bias0, axis=1))
         if share >= DEGREES_SHARE:  # frame-free, as the guard's deg/s test
