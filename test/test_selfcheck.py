@@ -22,7 +22,8 @@ from scipy.spatial.transform import Rotation
 from imu_calib_ros.cli import main
 from imu_calib_ros.core.estimator.selfcheck import (MIN_CALIBRATION_SHARE, NisTotals,
                                                     RunEvidence, SelfCheckConfig,
-                                                    judge, window_statistics, worst_bound)
+                                                    drift_clause, judge, window_statistics,
+                                                    worst_bound)
 from imu_calib_ros.testing.world_cases import compare_calibration, make_case
 
 
@@ -174,6 +175,39 @@ def test_window_statistics_have_their_design_false_alarm_rate_and_see_a_shifted_
     assert w.worst > worst_bound(0.002, w.directions), w
 
 
+def test_a_drift_of_the_biases_in_time_is_named_and_a_wrong_state_is_not() -> None:
+    """Windows whose biases settle over the run (``exp(-t / tau)``, 20 window sigmas on the
+    accelerometers, tau a tenth of the span and a third: the shapes fitted are a line and
+    tau a fifth) fail the chi2 and pass it with the drift taken out, and the clause names
+    the accelerometers' drift within 3 of its standard errors (plus a tenth for the shape)
+    and no gyro drift; a calibration state 20 sigmas off fails the chi2 too and is not
+    named a drift (its residuals follow the poses, not time)."""
+    from scipy.stats import chi2
+    a = 0.002
+    for seed in range(6):
+        rng = np.random.default_rng(10 + seed)
+        resid, jac, P, sigma, walk, nuis = _synthetic(rng, K=20)
+        t = np.sort(rng.uniform(0.0, 600.0, 20))
+        tau = (0.1, 0.33)[seed % 2] * np.ptp(t)
+        shape = np.exp(-(t - t[0]) / tau)
+        drifted = resid.copy()
+        drifted[:, 3:] += 20.0 * shape[:, None] * np.array([1.0, -1.0, 0.5])
+        w = window_statistics(drifted, jac, P, sigma, walk, nuis, t_s=t)
+        assert w.chi2 > chi2.isf(a, w.dof) and w.drift is not None, w
+        assert w.drift.chi2 <= chi2.isf(a, w.drift.dof), w.drift
+        # the fitted change within 3 of its standard errors (the exponential's tau is not
+        # the fitted shape's: a tenth of the span)
+        change = 20.0 * (shape[-1] - shape[0]) * np.array([1.0, -1.0, 0.5])
+        err = np.abs(np.array(w.drift.accel_m_s2) - change)
+        assert np.all(err <= 3.0 * np.array(w.drift.accel_se_m_s2) + 0.1 * 20.0), w.drift
+        text = drift_clause(w.drift, a)
+        assert 'drift of the biases' in text and 'accelerometer biases by up to' in text \
+            and 'gyro' not in text, text
+        w = window_statistics(*_synthetic(rng, K=20, shift=20.0), t_s=t)
+        assert w.chi2 > chi2.isf(a, w.dof), w
+        assert drift_clause(w.drift, a) == '', w.drift
+
+
 def _window_statistics_dense(resid: Any, jac: Any, P: Any, sigma: Any, walk_cov: Any,
                              nuisance: Any) -> tuple[float, int, float, int, int]:
     """The definition of :func:`window_statistics` with its (6K - rank) square matrices
@@ -293,13 +327,41 @@ def test_a_wrong_fixture_axis_is_refused_and_forced_files_are_marked(
     bag, truth = nav_case
     fx = str(_tilted(Path(truth.fixture_path), 0.3, tmp_path))
     out = tmp_path / 'c.yaml'
-    refused(*replay(capsys, bag, fx, out), out, 'stationary-window residuals')
+    rc, err = replay(capsys, bag, fx, out)
+    refused(rc, err, out, 'stationary-window residuals')
+    assert 'drift' not in err, err  # a wrong axis is not a drift in time
     rc, err = replay(capsys, bag, fx, out, '--force')
     assert rc == 0 and 'self-check failed' in err and '--force' in err, err
     v = yaml.safe_load(out.read_text())['imu_calibration']['provenance']['self_check']
     assert v['passed'] is False and v['forced'] is True
     assert v['summary'].startswith('FAILED, written with force')
     assert not v['checks']['windows.chi2']['passed']
+
+
+def test_a_unit_still_warming_up_is_refused_naming_the_drift(
+        nav_case: tuple[Path, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The navigation unit's biases settling by 0.1 deg/h and 100 ug per axis as
+    ``1 - exp(-t / 120 s)`` over its 3-minute plan: the calibration comes out beyond 4
+    sigma (with --force), the windows' chi2 refuses it, and the line says why and what to
+    do (before, it named only the chi2). The drift between the first and last window is
+    0.76 of the settling, 76 ug per accelerometer axis: named within a third."""
+    from msg_adapters.bag import read_bag, write_bag
+    bag, truth = nav_case
+    imu, joints = read_bag(bag)
+    t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
+    settle = (1.0 - np.exp(-t / 120.0))[:, None]
+    sign = np.array([1.0, -1.0, 1.0])
+    warm = tmp_path / 'warm.mcap'
+    write_bag(warm, dataclasses.replace(
+        imu, gyro_rad_s=imu.gyro_rad_s + settle * sign * 0.1 * math.pi / 180 / 3600,
+        accel_m_s2=imu.accel_m_s2 + settle * sign * 100e-6 * 9.80665), joints)
+    out = tmp_path / 'c.yaml'
+    rc, err = replay(capsys, warm, str(truth.fixture_path), out)
+    refused(rc, err, out, 'drift of the biases over the run')
+    assert 'record once its biases are steady' in err, err
+    ug = float(err.split('accelerometer biases by up to ')[1].split(' ug')[0])
+    assert 76 / 1.33 <= ug <= 76 * 1.33, err
 
 
 @pytest.mark.parametrize('wrong, word', [('accel_x_sign', 'accelerometer x scale factor of'),

@@ -515,7 +515,7 @@ class RunLedger:
         # the covariance the calibration file reports (x covariance_scale)
         return window_statistics(resid, jac, st.covariance * est.covariance_scale(), sigma,
                                  walk, nuis,
-                                 tuple(st.labels))
+                                 tuple(st.labels), t_s=t_mid * 1e-9)
 
 
 def step_attitude_variance(fixture: Any, q: FloatArray, f: FloatArray,

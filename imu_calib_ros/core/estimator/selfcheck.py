@@ -35,7 +35,11 @@ default; ``alpha`` = 0.2 %; checks that do not apply to a run keep their share):
     i.e. the attitude and velocity drift rates there, against the covariance the reported
     calibration predicts (window noise from the white-noise densities, the bias random walk
     between the window and the end of the run, ``J P J^T``); the mounting and the table's
-    base orientation are nuisance rotations projected out (``chi2(6 K - 6)``).
+    base orientation are nuisance rotations projected out (``chi2(6 K - 6)``). A failed
+    chi2 that passes with a drift of the biases in time projected out as well
+    (:func:`window_drift`) says so in its line, with the drift's size: a unit still warming
+    up (a navigation unit settling by 0.1 deg/h and 100 ug over its first two minutes) was
+    refused naming only the chi2, and the user could not tell a warm-up from a wrong fixture.
 ``windows.worst``
     The same residuals resolved along the directions the calibration covariance predicts
     (generalised eigenvectors of ``J P J^T`` against the rest): each is N(0, 1) for an honest
@@ -90,6 +94,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_factor, cho_solve
 
+from ..parameters import DEG_H_RAD_S, UG_M_S2
 from .coarse import MIN_ACCEL_REACH
 from .measurements import MEASUREMENT_DOF
 from .quantiles import binom_isf, chi2_isf, chi2_ppf, chi2_sf, norm_isf
@@ -99,6 +104,8 @@ FloatArray = NDArray[np.float64]
 #: the statistical checks the false-alarm probability is shared between (Sidak)
 STATISTICAL_CHECKS = ('nis.velocity', 'nis.attitude', 'gate', 'windows.chi2', 'windows.worst',
                       'plausible')
+#: windows.chi2's drift clause: the settling time constants tried, as shares of the span
+DRIFT_TAU_SHARES = (0.05, 0.1, 0.2, 0.4)
 MIN_CALIBRATION_SHARE = 1.0  # windows.worst: directions where J P J^T >= the window noise
 
 
@@ -147,6 +154,18 @@ class NisTotals:
 
 
 @dataclass(frozen=True)
+class WindowDrift:
+    """The windows' misfit with a bias drift over the run projected out (:func:`window_drift`)."""
+
+    chi2: float
+    dof: int
+    gyro_rad_s: tuple[float, ...]  # the drift's change from the first window to the last
+    accel_m_s2: tuple[float, ...]
+    gyro_se_rad_s: tuple[float, ...]  # their standard errors under the windows' model
+    accel_se_m_s2: tuple[float, ...]
+
+
+@dataclass(frozen=True)
 class WindowStatistics:
     """Stationary-window residual statistics (:func:`window_statistics`)."""
 
@@ -156,6 +175,7 @@ class WindowStatistics:
     worst: float  # largest |y| along the calibration directions
     worst_direction: str  # the calibration state that direction loads on most
     directions: int
+    drift: WindowDrift | None = None  # only where the windows misfit (chi2 > dof)
 
 
 @dataclass(frozen=True)
@@ -329,7 +349,8 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
         limit = chi2_isf(a, w.dof)
         checks.append(Check('windows.chi2', w.chi2 <= limit, w.chi2 / w.dof, limit / w.dof,
                             f'stationary-window residuals chi2/dof {w.chi2 / w.dof:.3g} over '
-                            f'{w.windows} windows, above {limit / w.dof:.3g}'))
+                            f'{w.windows} windows, above {limit / w.dof:.3g}'
+                            + drift_clause(w.drift, a)))
     if w is not None and w.directions > 0:
         bound = worst_bound(a, w.directions)
         checks.append(Check('windows.worst', w.worst <= bound, w.worst, bound,
@@ -339,15 +360,92 @@ def judge(ev: RunEvidence, config: SelfCheckConfig | None = None) -> Verdict:
     return Verdict(all(c.passed for c in checks), tuple(checks), cfg.false_alarm, a)
 
 
+def drift_clause(d: WindowDrift | None, alpha: float) -> str:
+    """Where the windows' misfit is a bias drift over the run (projected out, their chi2
+    passes at ``alpha``): a clause naming it and its size, else ''. A unit still warming up
+    (a navigation unit's biases settling by 0.1 deg/h and 100 ug over the first minutes) was
+    refused naming only the chi2."""
+    if d is None or d.dof <= 0 or d.chi2 > chi2_isf(alpha, d.dof):
+        return ''
+    # a change within 3 of its standard errors is what the windows' model spreads: not named
+    g = max((abs(x) for x, e in zip(d.gyro_rad_s, d.gyro_se_rad_s) if abs(x) > 3.0 * e),
+            default=0.0) / DEG_H_RAD_S
+    f = max((abs(x) for x, e in zip(d.accel_m_s2, d.accel_se_m_s2) if abs(x) > 3.0 * e),
+            default=0.0) / UG_M_S2
+    def two(x: float) -> str:  # two digits, never 7e+02
+        return f'{float(f"{x:.2g}"):g}'
+
+    sizes = ([f'gyro biases by up to {two(g)} deg/h'] if g > 0 else []) + (
+        ['accelerometer biases by up to ' + (f'{two(f / 1e3)} mg' if f >= 1e3 else
+                                              f'{two(f)} ug')] if f > 0 else [])
+    size = f'{", ".join(sizes)} from the first window to the last; ' if sizes else ''
+    return (f'; they follow a drift of the biases over the run ({size}chi2/dof '
+            f'{d.chi2 / d.dof:.3g} with it taken out): the unit had not settled (warming '
+            'up?); record once its biases are steady')
+
+
 def worst_bound(alpha: float, n: int) -> float:
     """``|y|`` bound of the largest of ``n`` independent N(0, 1) at false alarm ``alpha``."""
     per = 1.0 - (1.0 - alpha) ** (1.0 / max(n, 1))
     return norm_isf(per / 2.0)
 
 
+def window_drift(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: FloatArray,
+                 walk_cov: FloatArray, nuisance: FloatArray, t_s: FloatArray) -> WindowDrift:
+    """The windows' chi-square with a drift of the biases in time projected out as well:
+    per component, a straight line and a settling ``exp(-t / tau)`` (twelve more nuisance
+    columns), ``tau`` the one of :data:`DRIFT_TAU_SHARES` of the windows' span that fits
+    best (a warm-up's time constant is the unit's). The drift's change from the first window
+    to the last is the least-squares fit of those shapes with the nuisance projected out
+    (weighted by the window noise; a figure for the line, named where it is beyond 3 of its
+    standard errors under the windows' noise, walk and calibration covariance)."""
+    K = resid.shape[0]
+    t = np.asarray(t_s, float) - float(np.min(t_s))
+    span = max(float(np.ptp(t_s)), 1e-9)
+    fits = []
+    for frac in DRIFT_TAU_SHARES:
+        shapes = np.column_stack([t / span - 0.5, np.exp(-t / (frac * span))])
+        cols = np.zeros((K, 6, 12))
+        for c in range(6):
+            cols[:, c, 2 * c:2 * c + 2] = shapes
+        fits.append((window_statistics(resid, jac, P, sigma, walk_cov,
+                                       np.concatenate([nuisance, cols], axis=2)), shapes, cols))
+    w, shapes, cols = min(fits, key=lambda f: f[0].chi2)
+    n = 6 * K
+    s = np.ascontiguousarray(sigma.T).reshape(n)
+    r = np.ascontiguousarray(resid.T).reshape(n) / s
+    A = nuisance.transpose(1, 0, 2).reshape(n, -1) / s[:, None]
+    D = cols.transpose(1, 0, 2).reshape(n, 12) / s[:, None]
+    if A.shape[1]:
+        U, sv, _ = np.linalg.svd(A, full_matrices=False)
+        Qa = U[:, :int(np.sum(sv > sv.max() * max(A.shape) * np.finfo(float).eps))]
+        r, D = r - Qa @ (Qa.T @ r), D - Qa @ (Qa.T @ D)
+    coef, C = np.linalg.lstsq(D, r, rcond=None)[0], np.linalg.pinv(D.T @ D)
+    # the fit's covariance under the windows' model: noise, walk and the calibration's
+    # J P J^T (whitened as r; never formed at 6K x 6K)
+    J = jac.transpose(1, 0, 2).reshape(n, -1) / s[:, None]
+    DJ = D.T @ J
+    V = D.T @ D + DJ @ P @ DJ.T
+    for c in range(6):
+        rows = slice(c * K, (c + 1) * K)
+        Dc = D[rows]
+        V += Dc.T @ (walk_cov[:, :, c] / np.outer(s[rows], s[rows])) @ Dc
+    cov = C @ V @ C
+    d = shapes[int(np.argmax(t))] - shapes[int(np.argmin(t))]
+    change, se = np.zeros(6), np.zeros(6)
+    for c in range(6):
+        k = slice(2 * c, 2 * c + 2)
+        change[c] = float(d @ coef[k])  # SI: r and D were whitened alike
+        se[c] = math.sqrt(max(float(d @ cov[k, k] @ d), 0.0))
+    return WindowDrift(w.chi2, w.dof, tuple(map(float, change[:3])),
+                       tuple(map(float, change[3:])), tuple(map(float, se[:3])),
+                       tuple(map(float, se[3:])))
+
+
 def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: FloatArray,
                       walk_cov: FloatArray, nuisance: FloatArray,
-                      labels: tuple[str, ...] = ()) -> WindowStatistics:
+                      labels: tuple[str, ...] = (), t_s: FloatArray | None = None
+                      ) -> WindowStatistics:
     """Chi-square and directed statistics of stationary-window residuals.
 
     Parameters
@@ -366,6 +464,9 @@ def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: 
     nuisance : (K, 6, r)
         Derivatives of the prediction by nuisance parameters (rotations) projected out.
     labels : m names of the calibration states (for the worst direction).
+    t_s : (K,)
+        The windows' times (s): where the windows misfit (chi2 above its dof) and there are
+        at least four, :func:`window_drift` of them.
     """
     K = resid.shape[0]
     m = jac.shape[2]
@@ -434,7 +535,9 @@ def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: 
         load = (Pu @ (JGJ @ (R @ Ev[:, keep][:, j]))) / np.sqrt(lam_k[j])
         where = labels[int(np.argmax(np.abs(load)))] if labels else str(int(np.argmax(
             np.abs(load))))
-    return WindowStatistics(K, stat, dof, worst, where, n_dir)
+    drift = (window_drift(resid, jac, P, sigma, walk_cov, nuisance, t_s)
+             if t_s is not None and K >= 4 and stat > dof else None)
+    return WindowStatistics(K, stat, dof, worst, where, n_dir, drift)
 
 
 def evidence_dict(ev: RunEvidence) -> dict[str, Any]:
