@@ -147,6 +147,62 @@ def _random_chunks(rng: np.random.Generator, B: int = 3, m: int = 7):  # noqa: A
     return R, f, Mg, Ma, np.full((B, m), 0.005)
 
 
+def _run(lay: em.StateLayout, x0: np.ndarray, P0: np.ndarray, steps: list, sens: bool
+         ) -> ErrorStateFilter:
+    """One filter through ``steps`` (predict_rows, dense predict and updates, in order)."""
+    filt = ErrorStateFilter(lay, P0.copy(), 1.0)
+    filt.x = x0.copy()
+    if sens:
+        filt.sens = np.zeros(lay.n)
+        filt.sens[6:] = 1.0  # any direction: checked below against two runs' difference
+    for kind, a, b in steps:
+        if kind == 'rows':
+            filt.predict_rows(a, b)
+        elif kind == 'dense':
+            filt.predict(a, np.diag(b))
+        else:
+            filt.update('velocity', a, b, np.eye(3) * 0.5)
+    return filt
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_the_prior_sensitivity_is_the_estimate_s_derivative_along_the_initial_mean(
+        seed: int) -> None:
+    """``sens`` carries d x_end / d x_0 along its initial direction through predicts and
+    updates: the difference of two filters whose initial means differ by that direction, to
+    rounding (a de-weighted update's factor depends on its innovation, so there it is the
+    derivative at the factor used), also where process noise on the parameter
+    states (a bias walk) makes it differ from the constant-state ``P P0^-1`` shift
+    (``priors.prior_correction``), which it equals where there is none."""
+    from imu_calib_ros.core.estimator.priors import prior_correction
+    rng = np.random.default_rng(seed)
+    lay = em.StateLayout.build(('gyro_bias', 'gyro_scale', 'accel_bias'))
+    n = lay.n
+    P0 = np.diag(np.r_[np.full(6, 1e-2), rng.uniform(0.5, 2.0, n - 6)])
+    d = np.r_[np.zeros(6), np.ones(n - 6)]
+    for q_par in (0.0, 0.05):
+        steps: list = []
+        for k in range(60):
+            phi = np.eye(n)[0:6]
+            phi[:, 6:] = rng.normal(scale=0.3, size=(6, n - 6))
+            q = np.r_[np.full(6, 1e-3), np.full(n - 6, q_par)]
+            steps.append(('rows' if k % 2 else 'dense',
+                          phi if k % 2 else np.vstack([phi, np.eye(n)[6:]]), q))
+            H = np.zeros((3, n))
+            H[:, 0:3] = np.eye(3)
+            steps.append(('update', rng.normal(size=3), H))
+        a = _run(lay, np.zeros(n), P0, steps, sens=True)
+        b = _run(lay, d, P0, steps, sens=False)
+        assert a.sens is not None
+        np.testing.assert_allclose(a.sens, b.x - a.x, atol=1e-10 * np.abs(a.sens).max())
+        # prior sigmas by group (SI = scaled here: the layout's scale is not used)
+        const = prior_correction(a.P[6:, 6:], d[6:], {'g': np.sqrt(np.diag(P0))[6:]}, ('g',))
+        if q_par == 0.0:
+            assert not np.allclose(const, 0.0)
+        else:
+            assert np.abs(a.sens[6:] - const).max() > 0.1 * np.abs(const).max()
+
+
 def test_transition_rows_are_the_rows_of_the_full_matrix() -> None:
     rng = np.random.default_rng(4)
     lay = em.StateLayout.build(ALL)

@@ -188,6 +188,10 @@ class ErrorStateFilter:
         self._gate: dict[int, float] = {}
         self._diag = np.arange(layout.n) * (layout.n + 1)  # flat indices of diag(P)
         self.counters = GateCounters()
+        # the estimate's derivative along a shift of the initial mean (scaled units), carried
+        # through every predict and update as x is (the filter is linear in its initial
+        # mean): None unless the owner sets it (a pass started from a previous estimate)
+        self.sens: FloatArray | None = None
 
     def _threshold(self, m: int) -> float:
         if m not in self._gate:
@@ -201,6 +205,8 @@ class ErrorStateFilter:
         # estimator itself only uses predict_rows
         from filterpy.kalman import predict as kf_predict
         self.x, self.P = kf_predict(self.x, self.P, phi_s, q_s)
+        if self.sens is not None:
+            self.sens = phi_s @ self.sens
 
     def predict_rows(self, phi_rows_s: FloatArray, q_diag_s: FloatArray) -> None:
         """Same as :meth:`predict` for ``Phi = [[phi_rows_s], [0 I]]`` and ``Q = diag(q)``.
@@ -216,6 +222,8 @@ class ErrorStateFilter:
         P[0:6, 0:6] = T @ phi_rows_s.T
         P.flat[self._diag] += q_diag_s
         self.x[0:6] = phi_rows_s @ self.x
+        if self.sens is not None:
+            self.sens[0:6] = phi_rows_s @ self.sens
 
     def update(self, kind: str, z: FloatArray, H_s: FloatArray, R: FloatArray) -> bool:
         """Gated Joseph-form update; returns whether the innovation passed the gate.
@@ -281,6 +289,8 @@ class ErrorStateFilter:
                 c.innov_sum[kind], c.innov_sq[kind] = e.copy(), e * e
         K = _potrs(chol, PHt.T)[0].T  # P H^T S^-1
         self.x = self.x + PHt @ S_inv_y
+        if self.sens is not None:
+            self.sens = self.sens - K @ (H_s @ self.sens)
         # Joseph form: with M = (I - K H) P = P - K (P H^T)^T (P symmetric up to rounding),
         # M H^T - K R = P H^T - K S, so P <- M - (P H^T - K S) K^T: one rank-2m product
         X = PHt - K @ (HPHt + R)

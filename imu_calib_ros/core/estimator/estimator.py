@@ -71,7 +71,7 @@ from .measurements import (MEAS_SCALE, MEASUREMENT_DOF, chain_attitude_covarianc
 from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, bias_walk_sources,
                     check_grade_hint, instability_covered, white_noise_densities,
                     white_noise_from_window)
-from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_correction, prior_point,
+from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_point,
                      prior_shift, prior_sigmas, prior_vector)
 from .propagation import Block, omega_dot_half_span, propagate_block
 from .result import (CONTRACT_KEYS, Estimate, calibration_result, estimator_extra,
@@ -208,6 +208,8 @@ class CalibrationEstimator:
         self._last_good_cache: tuple[int, Any] | None = None
         self._nis = NisWindow(gcfg.nis_window)
         self._kept_cal_P: FloatArray | None = None  # calibration block of P while re-aligning
+        self._kept_sens: FloatArray | None = None  # and of the filter's prior sensitivity
+        self._good_sens: deque[FloatArray | None] = deque(maxlen=self._good.maxlen)
         self._level_M: FloatArray | None = None  # the alignment's tilt coupling, to apply once
         # the gate counters of every filter of the run (a new filter at every (re-)alignment,
         # restart and re-initialisation), for the whole-run NIS (self-check, covariance scale)
@@ -360,7 +362,7 @@ class CalibrationEstimator:
         tg, ta, rho, mount = (self._theta_g.copy(), self._theta_a.copy(), self._rho.copy(),
                               self._mount.copy())
         if self._prior_shift is not None and values.size:
-            values = values - self._prior_correction(P)
+            values = values - self._prior_correction()
             tg, ta, rho, mount = with_values(lay, values, tg, ta, rho, mount)
         if self._consider is not None and self._filter is not None:
             P = self._with_chain_consider(P)
@@ -1254,6 +1256,8 @@ class CalibrationEstimator:
         self._filter = ErrorStateFilter(self.layout,
                                         initial_covariance(self.layout, self._prior, cfg),
                                         cfg.gate_probability, cfg.gate_action == 'deweight')
+        if self._prior_shift is not None:  # the calibration part comes back at a re-alignment
+            self._filter.sens = np.concatenate([np.zeros(6), self._shift_scaled()])
         self._process_noise.start(self.layout, bias_random_walk(
             self.grade, self.start, cfg.aiding_gyro_noise_rad_s_rt_hz))
         if not self._run_counters:
@@ -1265,6 +1269,10 @@ class CalibrationEstimator:
         if self._kept_cal_P is not None and self._filter is not None:
             self._filter.P[6:, 6:] = self._kept_cal_P
             self._kept_cal_P = None
+        if self._kept_sens is not None and self._filter is not None \
+                and self._filter.sens is not None:
+            self._filter.sens[6:] = self._kept_sens
+            self._kept_sens = None
 
     # ------------------------------------------------------------------ health and faults
     def _check_divergence(self) -> None:
@@ -1288,6 +1296,7 @@ class CalibrationEstimator:
             self._declare_divergence(reason)
         else:
             self._good.append(self.estimate_state())
+            self._good_sens.append(None if filt.sens is None else filt.sens.copy())
             self._adapt_bias_noise()
 
     def _adapt_bias_noise(self) -> None:
@@ -1321,6 +1330,7 @@ class CalibrationEstimator:
         self._diverged = reason
         self.counters['divergences'] += 1
         st = self._good[0] if self._good else None
+        sens = self._good_sens[0] if self._good_sens else None
         self._last_good_state = st
         lay = self.layout
         if st is not None:
@@ -1330,7 +1340,7 @@ class CalibrationEstimator:
                 # the snapshot holds reported (prior-corrected) values; the navigator's working
                 # point is the uncorrected one that estimate_state() corrects again
                 self._theta_g, self._theta_a, self._rho, self._mount = with_values(
-                    lay, st.values + self._prior_correction(st.covariance), self._theta_g,
+                    lay, st.values + self._prior_correction(sens), self._theta_g,
                     self._theta_a, self._rho, self._mount)
             self._joint_offsets = self._offsets_of(st.values)
         else:  # nothing good yet: back to the starting point
@@ -1341,6 +1351,9 @@ class CalibrationEstimator:
             self._filter.P = rollback_covariance(lay, None if st is None else st.covariance,
                                                  prior_vector(self._prior, lay.groups))
             self._filter.x = np.zeros(lay.n)
+            if self._filter.sens is not None:  # as it was at the snapshot (else: the start's)
+                self._filter.sens = np.concatenate([np.zeros(6), self._shift_scaled()]) \
+                    if sens is None else sens.copy()
         self._imu.drop_all()
         _LOG.error('calibration filter diverged (%s): estimate rolled back to the last good '
                    'block', reason)
@@ -1360,7 +1373,9 @@ class CalibrationEstimator:
         lay = self.layout
         self._kept_cal_P = restart_covariance(prior_vector(self._prior, lay.groups), lay,
                                               self.restarts)
+        self._kept_sens = None  # from the start point again: the shift's whole sensitivity
         self._good.clear()
+        self._good_sens.clear()
         self._gated_run = 0
         self._cascade = False
 
@@ -1637,6 +1652,8 @@ class CalibrationEstimator:
         restarts."""
         if self._filter is not None:  # else a block kept earlier is still waiting: keep it
             self._kept_cal_P = self._filter.P[6:, 6:].copy()
+            if self._filter.sens is not None:
+                self._kept_sens = self._filter.sens[6:].copy()
         self._running = False
         self._nav = None
         self._filter = None
@@ -1702,11 +1719,27 @@ class CalibrationEstimator:
             c[1].flags.writeable = False
         return c[1]
 
-    def _prior_correction(self, P: FloatArray) -> FloatArray:
-        """What re-centring the prior on the starting estimate added to the estimate
-        (:func:`.priors.prior_correction`: ``P P0^-1 (start - prior mean)``)."""
+    def _shift_scaled(self) -> FloatArray:
+        """:attr:`_prior_shift` in the filter's scaled units."""
         assert self._prior_shift is not None
-        return prior_correction(P, self._prior_shift, self._prior, self.layout.groups)
+        return self._prior_shift / self.layout.scale[6:]
+
+    def _prior_correction(self, sens: FloatArray | None = None) -> FloatArray:
+        """What re-centring the prior on the starting estimate added to the estimate (SI):
+        the filter's sensitivity to its initial mean along the shift (``sens``: a snapshot's;
+        else the running filter's, the one kept over a re-alignment, or before any filter the
+        whole shift). For constant states it is :func:`.priors.prior_correction`'s
+        ``P P0^-1 (start - prior mean)``; a bias whose random walk makes its posterior wider
+        than its prior forgets the prior, which ``P P0^-1`` does not know (a consumer unit's
+        gyro bias moved 5.4 sigma off by a second pass, its sigma 1.18x its prior's)."""
+        if sens is None:
+            f = self._filter
+            sens = f.sens[6:] if f is not None and f.sens is not None else self._kept_sens
+        if sens is None:
+            sens = self._shift_scaled()
+        elif len(sens) == self.layout.n:
+            sens = sens[6:]
+        return sens * self.layout.scale[6:]
 
     def _make_errors(self) -> Any:
         return em.errors_from_theta(self._theta_g, self._theta_a, sm.SensorErrors)

@@ -6,7 +6,8 @@ narrower than :data:`COARSE_FLOOR` nor than the grade hint) or, without one, fro
 the product is specified for. The prior mean is where the first pass starts: the coarse start,
 else no sensor errors, with the nominal lever arm. A later pass (Savage, "Improved strapdown
 IMU calibration procedures", sect. 8) relinearises about the previous estimate but keeps this
-prior: :func:`prior_correction` takes off what the re-centred prior mean added.
+prior: what the re-centred prior mean added is taken off (:func:`prior_correction` for
+constant states; the estimator carries the filter's own slope, which a bias walk lowers).
 """
 from __future__ import annotations
 
@@ -150,9 +151,12 @@ def prior_correction(P: FloatArray, shift: FloatArray, prior: dict[str, FloatArr
     the prior mean with slope ``P P0^-1`` (information form: ``P^-1 x = P0^-1 m +
     sum H^T R^-1 z``), so ``P P0^-1 (start - prior mean)`` is taken off again: the pass
     relinearises about the previous estimate but keeps the grade's prior. The biases'
-    random walk makes the slope smaller than that; for the shipped grades either the
-    walk or ``P P0^-1`` is negligible (nav: 0.0005 deg/h over a 0.01 deg/h prior; MEMS:
-    a 6 deg/h posterior under a 720 deg/h prior).
+    random walk makes the slope smaller than that, and not negligibly: a raw MEMS unit's
+    coarse-start gyro-bias prior is a few deg/h, its posterior under a raised walk as wide,
+    and this formula moved a second pass's gyro bias by 5.4 sigma. The estimator therefore
+    carries the slope itself through the filter (``ErrorStateFilter.sens``,
+    ``CalibrationEstimator._prior_correction``); this is its constant-state closed form,
+    which the tests hold it to.
 
     Parameters
     ----------
