@@ -1599,7 +1599,6 @@ class CalibrationEstimator:
                     np.diag(self._filter.P)[offs], 0.0, None)) * self.layout.scale[offs]
             var_att += float(np.sum((sig * later) ** 2))
         fx = self.fixture
-        q_enc = q
         q = self._with_offsets(q)
         dF = fx.R_enu_imu(q[1]) @ fx.R_enu_imu(q[0]).T
         R1 = dF @ self._nav.R_enu_imu
@@ -1643,7 +1642,7 @@ class CalibrationEstimator:
         q1_s = self._process_noise.q1_s
         assert q1_s is not None
         if self._filter.sens is not None:
-            self._filter.sens = self._bridged_sens(self._filter.sens, q_enc, dF, Ru, R1, w_eb,
+            self._filter.sens = self._bridged_sens(self._filter.sens, q, dF, Ru, R1, w_eb,
                                                    chain)
         self._filter.P = bridge_motion_covariance(self._filter.P, self.layout, dF, Ru, R1, w_eb,
                                                   var_att, var_vel, q1_s, (t1 - t0) * 1e-9)
@@ -1653,16 +1652,18 @@ class CalibrationEstimator:
         self.counters['gaps_bridged_in_motion'] += 1
         return True
 
-    def _bridged_sens(self, sens: FloatArray, q_enc: FloatArray, dF: FloatArray, Ru: FloatArray,
+    def _bridged_sens(self, sens: FloatArray, q: FloatArray, dF: FloatArray, Ru: FloatArray,
                       R1: FloatArray, w_eb: FloatArray, chain: Any) -> FloatArray:
         """The prior sensitivity (scaled) across a bridge in motion: the derivative of the
         bridge's own map (:meth:`_bridge_motion`), which sets the attitude to ``dF R0`` and the
         velocity to the fixture's. The attitude part is rotated by ``dF`` and moves with the
-        joint-offset states through ``dF`` itself (its columns by finite differences of the
-        kinematics); the velocity part is the model's: ``-[(R u) x] psi1 + R [omega_eb x]
-        rho`` and, on a chain, the anchor velocity's offset term. Without it the bridges
-        (32-43 of them in a run with 1 % of the IMU samples lost) left the correction up to
-        0.36 sigma off a finite difference of the whole pipeline (0.04 with it)."""
+        joint-offset states through ``dF = R(q1) R(q0)^T`` itself, ``q`` (2, n) the angles
+        with the offsets: column ``j`` is ``u_j(q1) - dF u_j(q0)``, ``u`` the joint axes in
+        ENU (``d R(q) / d q_j = [u_j x] R(q)``); the velocity part is the model's:
+        ``-[(R u) x] psi1 + R [omega_eb x] rho`` and, on a chain, the anchor velocity's offset
+        term. Without it the bridges (32-43 of them in a run with 1 % of the IMU samples lost)
+        left the correction up to 0.36 sigma off a finite difference of the whole pipeline
+        (0.04 with it)."""
         lay = self.layout
         s = lay.scale
         v = sens * s  # SI
@@ -1670,18 +1671,8 @@ class CalibrationEstimator:
         offs = lay.slices.get(em.CHAIN_GROUP)
         n_off = len(self._offset_joints) if offs is not None and lay.n_joint_offsets else 0
         if n_off:
-            fx = self.fixture
-            o0 = np.asarray(self._joint_offsets[:n_off], float)
-            G = np.zeros((3, n_off))
-            h = 1e-6
-            for j in range(n_off):
-                qq = np.array(q_enc, dtype=float)
-                d = np.zeros(n_off)
-                d[j] = h
-                qq[..., list(self._offset_joints)] += o0 + d
-                G[:, j] = Rotation.from_matrix(
-                    fx.R_enu_imu(qq[1]) @ fx.R_enu_imu(qq[0]).T @ dF.T).as_rotvec() / h
-            psi = psi + G @ v[offs][:n_off]
+            u = self.fixture.angular_axes_enu(q)[:, list(self._offset_joints)]  # (2, n_off, 3)
+            psi = psi + (u[1] - u[0] @ dF.T).T @ v[offs][:n_off]
         vel = -skew(Ru) @ psi
         if 'lever_arm' in lay.slices:
             vel = vel + R1 @ skew(w_eb) @ v[lay.slices['lever_arm']]
