@@ -36,8 +36,8 @@ default; ``alpha`` = 0.2 %; checks that do not apply to a run keep their share):
     calibration predicts (window noise from the white-noise densities, the bias random walk
     between the window and the end of the run, ``J P J^T``); the mounting and the table's
     base orientation are nuisance rotations projected out (``chi2(6 K - 6)``). A failed
-    chi2 that passes with a drift of the biases in time projected out as well
-    (:func:`window_drift`) says so in its line, with the drift's size: a unit still warming
+    chi2 that a drift of the biases in time explains (:func:`window_drift`, the rules of
+    :func:`drift_clause`) says so in its line, with the drift's size: a unit still warming
     up (a navigation unit settling by 0.1 deg/h and 100 ug over its first two minutes) was
     refused naming only the chi2, and the user could not tell a warm-up from a wrong fixture.
 ``windows.worst``
@@ -400,6 +400,19 @@ def worst_bound(alpha: float, n: int) -> float:
     return norm_isf(per / 2.0)
 
 
+def _by_component(x: FloatArray) -> FloatArray:
+    """Per-window rows ``(K, 6, ...)`` stacked by component, ``(6 K, ...)``: all windows'
+    component 0, then 1, ... (the order :func:`window_statistics` works in)."""
+    return np.ascontiguousarray(np.swapaxes(x, 0, 1)).reshape((6 * x.shape[0],) + x.shape[2:])
+
+
+def _range_basis(A: FloatArray) -> FloatArray:
+    """Orthonormal basis (n, rank) of the columns of ``A`` (n, r); (n, 0) for none."""
+    U, sv, _ = np.linalg.svd(A, full_matrices=False)
+    rank = int(np.sum(sv > sv.max() * max(A.shape) * np.finfo(float).eps)) if sv.size else 0
+    return U[:, :rank]
+
+
 def window_drift(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: FloatArray,
                  walk_cov: FloatArray, nuisance: FloatArray, t_s: FloatArray) -> WindowDrift:
     """The windows' chi-square with a drift of the biases in time projected out as well:
@@ -421,19 +434,15 @@ def window_drift(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: Float
         fits.append((window_statistics(resid, jac, P, sigma, walk_cov,
                                        np.concatenate([nuisance, cols], axis=2)), shapes, cols))
     w, shapes, cols = min(fits, key=lambda f: f[0].chi2)
-    n = 6 * K
-    s = np.ascontiguousarray(sigma.T).reshape(n)
-    r = np.ascontiguousarray(resid.T).reshape(n) / s
-    A = nuisance.transpose(1, 0, 2).reshape(n, -1) / s[:, None]
-    D = cols.transpose(1, 0, 2).reshape(n, 12) / s[:, None]
-    if A.shape[1]:
-        U, sv, _ = np.linalg.svd(A, full_matrices=False)
-        Qa = U[:, :int(np.sum(sv > sv.max() * max(A.shape) * np.finfo(float).eps))]
-        r, D = r - Qa @ (Qa.T @ r), D - Qa @ (Qa.T @ D)
+    s = _by_component(sigma)
+    r = _by_component(resid) / s
+    D = _by_component(cols) / s[:, None]
+    Qa = _range_basis(_by_component(nuisance) / s[:, None])
+    r, D = r - Qa @ (Qa.T @ r), D - Qa @ (Qa.T @ D)
     coef, C = np.linalg.lstsq(D, r, rcond=None)[0], np.linalg.pinv(D.T @ D)
     # the fit's covariance under the windows' model: noise, walk and the calibration's
     # J P J^T (whitened as r; never formed at 6K x 6K)
-    J = jac.transpose(1, 0, 2).reshape(n, -1) / s[:, None]
+    J = _by_component(jac) / s[:, None]
     DJ = D.T @ J
     V = D.T @ D + DJ @ P @ DJ.T
     for c in range(6):
@@ -484,18 +493,16 @@ def window_statistics(resid: FloatArray, jac: FloatArray, P: FloatArray, sigma: 
     # rows ordered by component (all windows' component 0, then 1, ...): the window noise
     # N = I + W is then block diagonal, one K x K block per component (the walk of one
     # component is independent of the others'); the statistics do not depend on the order
-    s = np.ascontiguousarray(sigma.T).reshape(n)
-    r = np.ascontiguousarray(resid.T).reshape(n) / s
+    s = _by_component(sigma)
+    r = _by_component(resid) / s
     # the states in units of their sigmas (x = D u, P = D Pu D): the same figures, but the
     # products and the eigenproblem below of order one (P's own scales span decades)
     sd = np.sqrt(np.clip(np.diag(P), 1e-300, None))
     Pu = P / np.outer(sd, sd)
-    J = jac.transpose(1, 0, 2).reshape(n, m) * (sd[None, :] / s[:, None])
-    A = nuisance.transpose(1, 0, 2).reshape(n, -1) / s[:, None]
+    J = _by_component(jac) * (sd[None, :] / s[:, None])
     # orthonormal basis of what the nuisance produces (the rest, Z, is what it cannot)
-    U, sv, _ = np.linalg.svd(A, full_matrices=False)
-    rank_a = int(np.sum(sv > sv.max() * max(A.shape) * np.finfo(float).eps)) if sv.size else 0
-    Qa = U[:, :rank_a]
+    Qa = _range_basis(_by_component(nuisance) / s[:, None])
+    rank_a = Qa.shape[1]
     # N^-1 [r J Qa] by the Cholesky factors of the six blocks; r and J first without their
     # part in range(A) (G below ignores it: the same figures, but without the rounding of a
     # large nuisance part that would cancel in G)
