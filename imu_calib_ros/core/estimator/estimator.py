@@ -1773,7 +1773,7 @@ class CalibrationEstimator:
         the filter's sensitivity to its initial mean along the shift (``sens``: a snapshot's
         calibration part, scaled; else the running filter's, the one kept over a
         re-alignment, or before any filter the whole shift). For constant states it is
-        :func:`.priors.prior_correction`'s ``P P0^-1 (start - prior mean)``; a bias whose
+        ``P P0^-1 (start - prior mean)`` (:mod:`.priors`); a bias whose
         random walk makes its posterior wider than its prior forgets the prior, which
         ``P P0^-1`` does not know (a consumer unit's gyro bias moved 5.4 sigma off by a second
         pass, its sigma 1.18x its prior's)."""

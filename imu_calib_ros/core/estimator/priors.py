@@ -6,8 +6,13 @@ narrower than :data:`COARSE_FLOOR` nor than the grade hint) or, without one, fro
 the product is specified for. The prior mean is where the first pass starts: the coarse start,
 else no sensor errors, with the nominal lever arm. A later pass (Savage, "Improved strapdown
 IMU calibration procedures", sect. 8) relinearises about the previous estimate but keeps this
-prior: what the re-centred prior mean added is taken off (:func:`prior_correction` for
-constant states; the estimator carries the filter's own slope, which a bias walk lowers).
+prior: started there with the prior covariance ``P0`` it would count the data twice (its
+prior mean is already the data's answer), so what the re-centred prior mean added is taken
+off again. For constant states that is ``P P0^-1 (start - prior mean)`` (information form:
+``P^-1 x = P0^-1 m + sum H^T R^-1 z``); a bias under a random walk forgets its prior, so the
+estimator carries the filter's own slope (``ErrorStateFilter.sens``,
+``CalibrationEstimator._prior_correction``; the closed form moved a raw MEMS unit's gyro bias
+by 5.4 sigma).
 """
 from __future__ import annotations
 
@@ -139,33 +144,3 @@ def prior_shift(initial: Estimate | None, labels: tuple[str, ...],
         raise ValueError('the starting estimate has other states than this estimator '
                          '(a pass with another configuration?)')
     return np.asarray(initial.values, float) - prior_mean
-
-
-def prior_correction(P: FloatArray, shift: FloatArray, prior: dict[str, FloatArray],
-                     groups: tuple[str, ...]) -> FloatArray:
-    """What re-centring the prior on the starting estimate added to the estimate.
-
-    A pass that starts from a previous pass's estimate with the grade's prior covariance
-    ``P0`` (Savage sect. 8, PSINS's passes) would count the data twice: its prior mean
-    is already the data's answer. For constant states the posterior mean is linear in
-    the prior mean with slope ``P P0^-1`` (information form: ``P^-1 x = P0^-1 m +
-    sum H^T R^-1 z``), so ``P P0^-1 (start - prior mean)`` is taken off again: the pass
-    relinearises about the previous estimate but keeps the grade's prior. The biases'
-    random walk makes the slope smaller than that, and not negligibly: a raw MEMS unit's
-    coarse-start gyro-bias prior is a few deg/h, its posterior under a raised walk as wide,
-    and this formula moved a second pass's gyro bias by 5.4 sigma. The estimator therefore
-    carries the slope itself through the filter (``ErrorStateFilter.sens``,
-    ``CalibrationEstimator._prior_correction``); this is its constant-state closed form,
-    which the tests hold it to.
-
-    Parameters
-    ----------
-    P : (m, m)
-        SI covariance of the calibration states.
-    shift : (m,)
-        :func:`prior_shift`.
-    prior, groups :
-        Prior sigmas by group; the estimated groups in state order.
-    """
-    p0 = np.concatenate([prior[g] for g in groups])
-    return P @ (shift / p0 ** 2)
