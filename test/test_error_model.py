@@ -43,24 +43,35 @@ def test_gyro_and_accel_jacobians_match_finite_differences_of_measure() -> None:
     fdot = np.gradient(f, axis=0) / 0.005
     e0 = _random_errors()
     tg, ta = em.theta_from_errors(e0)
-    Mg = em.gyro_jacobian(w, f)
-    Ma = em.accel_jacobian(w, wd, f, fdot)
+    w2, f2 = np.diff(w, 2, axis=0), np.diff(f, 2, axis=0)  # any curvature: a column each
+    w, wd, f, fdot = w[1:-1], wd[1:-1], f[1:-1], fdot[1:-1]
+    Mg = em.gyro_jacobian(w, f, w2)
+    Ma = em.accel_jacobian(w, wd, f, fdot, f2)
     h = 1e-6
-    for j in range(em.N_GYRO):
+    aux_g = {em.gyro_cols('gyro_sample_kernel').start}
+    aux_a = {em.accel_cols(g).start for g in ('time_offset', 'accel_sample_kernel')}
+    for j in sorted(set(range(em.N_GYRO)) - aux_g):  # the auxiliary states: not SensorErrors
         d = np.zeros(em.N_GYRO)
         d[j] = h
         gp, _ = sm.measure(em.errors_from_theta(tg + d, ta, sm.SensorErrors), w, wd, f)
         gm, _ = sm.measure(em.errors_from_theta(tg - d, ta, sm.SensorErrors), w, wd, f)
         # measure is linear in the parameters: central differences are exact to rounding
         np.testing.assert_allclose((gp - gm) / (2 * h), Mg[:, :, j], atol=1e-7, rtol=1e-7)
-    for j in range(em.N_ACCEL - 1):  # the last column (time offset) is not in SensorErrors
+    for j in sorted(set(range(em.N_ACCEL)) - aux_a):
         d = np.zeros(em.N_ACCEL)
         d[j] = h
         _, ap = sm.measure(em.errors_from_theta(tg, ta + d, sm.SensorErrors), w, wd, f)
         _, am = sm.measure(em.errors_from_theta(tg, ta - d, sm.SensorErrors), w, wd, f)
         np.testing.assert_allclose((ap - am) / (2 * h), Ma[:, :, j], atol=1e-6, rtol=1e-7)
     # time offset: accelerometers sampled tau late read f(t + tau)
-    np.testing.assert_array_equal(Ma[:, :, -1], fdot)
+    np.testing.assert_array_equal(Ma[:, :, em.accel_cols('time_offset').start], fdot)
+    # sampling kernels: a point sample (s = 1) reads the interval mean minus f'' dt^2 / 24
+    np.testing.assert_array_equal(Mg[:, :, em.gyro_cols('gyro_sample_kernel').start], -w2 / 24)
+    np.testing.assert_array_equal(Ma[:, :, em.accel_cols('accel_sample_kernel').start],
+                                  -f2 / 24)
+    # and the columns of the other groups do not depend on the curvature
+    np.testing.assert_array_equal(np.delete(Mg, sorted(aux_g), axis=2),
+                                  np.delete(em.gyro_jacobian(w, f), sorted(aux_g), axis=2))
 
 
 def test_compensation_error_is_minus_jacobian_times_parameter_error() -> None:
@@ -76,7 +87,8 @@ def test_compensation_error_is_minus_jacobian_times_parameter_error() -> None:
     rng = np.random.default_rng(7)
     dg = rng.normal(0, 1e-6, em.N_GYRO)  # estimate minus truth
     da = rng.normal(0, 1e-6, em.N_ACCEL)
-    da[-1] = 0.0
+    dg[em.gyro_cols('gyro_sample_kernel')] = 0.0  # the auxiliary states: not SensorErrors
+    da[em.accel_cols('time_offset')] = da[em.accel_cols('accel_sample_kernel')] = 0.0
     da[em.accel_cols('size_effect')] = rng.normal(0, 1e-5, 6)
     e_hat = em.errors_from_theta(tg + dg, ta + da, sm.SensorErrors)
     w_hat, f_hat = sm.compensate(e_hat, gyro, accel, wd)
@@ -109,14 +121,22 @@ def test_chunk_transition_matches_strapdown_finite_differences(seed: int) -> Non
     e_true = _random_errors(seed)
     gyro, accel = sm.measure(e_true, w, wd, f)
     fdot = np.gradient(f, axis=0) / 0.005
+    # the samples' curvature (f'' dt^2), as propagation.propagate_block takes it
+    w2 = np.gradient(np.gradient(gyro, axis=0), axis=0)
+    f2 = np.gradient(np.gradient(accel, axis=0), axis=0)
     tg, ta = em.theta_from_errors(e_true)
     layout = em.StateLayout.build(ALL)
     R0 = k.R_enu_imu[0]
+    kg, ka, kt = (em.gyro_cols('gyro_sample_kernel'), em.accel_cols('accel_sample_kernel'),
+                  em.accel_cols('time_offset'))
 
     def run(dg: np.ndarray, da: np.ndarray, psi0: np.ndarray, dv0: np.ndarray):
         e_hat = em.errors_from_theta(tg + dg, ta + da, sm.SensorErrors)
         w_c, f_c = sm.compensate(e_hat, gyro, accel, wd)
-        f_c = f_c - da[-1] * fdot  # time offset compensation, as the estimator does
+        # the auxiliary states' compensation, as the estimator does
+        f_c = f_c - (ta + da)[kt] * fdot
+        w_c = w_c - (tg + dg)[kg] * em.sample_kernel_column(w2)
+        f_c = f_c - (ta + da)[ka] * em.sample_kernel_column(f2)
         from scipy.spatial.transform import Rotation
         nav = Strapdown(fx.site, Rotation.from_rotvec(psi0).as_matrix() @ R0, dv0)
         out = nav.propagate(dt, w_c, f_c)
@@ -124,7 +144,7 @@ def test_chunk_transition_matches_strapdown_finite_differences(seed: int) -> Non
 
     ref, w_c, f_c = run(np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), np.zeros(3), np.zeros(3))
     e_hat = em.errors_from_theta(tg, ta, sm.SensorErrors)
-    Mg, Ma = em.compensated_jacobians(e_hat, w_c, wd, f_c, fdot)
+    Mg, Ma = em.compensated_jacobians(e_hat, w_c, wd, f_c, fdot, w2, f2)
     R_mid = 0.5 * (np.concatenate([R0[None], ref.R_enu_imu[:-1]]) + ref.R_enu_imu)
     phi = chunk_transitions(layout, R_mid[None], ref.f_enu_m_s2[None], Mg[None],
                             Ma[None], dt[None], fx.site.omega_ie_enu)[0]

@@ -116,7 +116,8 @@ def test_filter_theta_derives_from_registry() -> None:
     to and from SensorErrors put every entry where the registry says."""
     assert em.GYRO_GROUPS == tuple(g.name for g in registry.GROUPS if g.side == 'g')
     assert em.ACCEL_GROUPS == tuple(g.name for g in registry.GROUPS if g.side == 'a')
-    assert (em.N_GYRO, em.N_ACCEL) == (21, 25)  # 24 sensor errors + the time offset
+    # 21 and 24 sensor errors, the time offset and the two sampling kernels
+    assert (em.N_GYRO, em.N_ACCEL) == (22, 26)
     assert CONTRACT_KEYS == registry.GROUPS_OF_KEY
     rng = np.random.default_rng(0)
     e = sm.SensorErrors.from_vector(rng.normal(size=45))

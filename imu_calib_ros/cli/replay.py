@@ -317,6 +317,10 @@ def run(args: Any) -> int:
         note = _walk_note(calib)  # about the file written: not before a refusal
         if note and not args.quiet:
             print(note, file=sys.stderr)
+        from ..core.estimator.priors import kernel_note
+        note = kernel_note(calib.extra.get('estimator', {}), config)
+        if note and not args.quiet:
+            print(f'imu-calib replay: note: {note}', file=sys.stderr)
     _reorder_note(reorder, args.reorder_window, args.quiet)
     calib = _with_provenance(calib, args, reorder)
     if verdict is not None:  # the same rule as the node's save (core/estimator/selfcheck.py)

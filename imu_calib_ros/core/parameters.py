@@ -8,8 +8,9 @@ Two levels, both in fixed order:
 - :data:`GROUPS`, the groups the filter estimates and a grade states a prior for: the
   entries of one parameter that share a unit and a prior (``gyro_scale`` is the diagonal of
   Kg, ``gyro_misalignment`` its upper triangle), then the auxiliary states (time offset,
-  lever arm, mounting). Each has its engineering unit (SI value and name), its side (gyro or
-  accelerometer parameter vector of the filter, :mod:`.estimator.error_model`), the
+  sampling kernel, lever arm, mounting). Each has its engineering unit (SI value and name),
+  its side (gyro or accelerometer parameter vector of the filter,
+  :mod:`.estimator.error_model`), the
   :class:`~.imu_grade.ErrorSigmas` field that gives its grade prior, and the raw and coarse
   priors of :mod:`.estimator.priors`. The filter's parameter vectors (theta) are the groups
   of each side in this order.
@@ -190,8 +191,12 @@ GROUPS: tuple[Group, ...] = (
           'accel_quadratic', 1e-4, 1e-4),
     Group('size_effect', 'accelerometer.size_effect', OFF_DIAGONAL, MM, 'mm', 'a',
           'size_effect_m', 2e-2, 2e-2),
-    # auxiliary states: accel-minus-gyro time offset, fixture lever arm, IMU mounting
+    # auxiliary states: accel-minus-gyro time offset, the gyros' and the accelerometers'
+    # sampling kernels (0: interval means, 1: point samples;
+    # estimator.error_model.sample_kernel_column), fixture lever arm, IMU mounting
     Group('time_offset', None, ((0,),), US, 'us', 'a'),
+    Group('gyro_sample_kernel', None, ((0,),), 1.0, '1', 'g'),
+    Group('accel_sample_kernel', None, ((0,),), 1.0, '1', 'a'),
     Group('lever_arm', None, VECTOR, MM, 'mm', ''),
     Group('mounting', None, VECTOR, URAD, 'urad', ''),
 )

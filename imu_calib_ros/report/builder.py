@@ -435,6 +435,19 @@ def _esc(x: Any) -> str:
     return html.escape(str(x))
 
 
+def _kernels(est: dict[str, Any]) -> str:
+    """``'; sampling kernels gyro 0.98 +- 0.16, accel 1.01 +- 0.09 (0 interval means, 1 point
+    samples)'`` when they were states, else ''."""
+    parts = []
+    for side in ('gyro', 'accel'):
+        k, sd = est.get(f'{side}_sample_kernel'), est.get(f'{side}_sample_kernel_sigma')
+        if k is not None and sd:
+            parts.append(f'{side} {k:.2f} +- {sd[0]:.2f}')
+    if not parts:
+        return ''
+    return f'; sampling kernels {", ".join(parts)} (0 interval means, 1 point samples)'
+
+
 def header_html(calib: Any, calib_path: str | None, fixture: Any, bag: Any,
                 generated: str) -> str:
     """The document's header: what was calibrated, from what, with what, by what."""
@@ -470,7 +483,8 @@ def header_html(calib: Any, calib_path: str | None, fixture: Any, bag: Any,
         rows.append(('estimator', f'states: {", ".join(est["estimated_groups"])}; encoder '
                                   'attitude aiding '
                                   f'{"on" if est.get("attitude_aiding") else "off"}'
-                                  f'; time offset {1e3 * est.get("time_offset_s", 0.0):.3g} ms'))
+                                  f'; time offset {1e3 * est.get("time_offset_s", 0.0):.3g} ms'
+                                  f'{_kernels(est)}'))
     if isinstance(est.get('settings_changed'), dict):
         ch = est['settings_changed']
         listed = ', '.join(f'{k} {v}' for k, v in sorted(ch.items()))

@@ -44,6 +44,10 @@ class EstimatorConfig:
     estimate_lever_arm: bool = setting(True,
                                        'estimate the reference point offset rho from the axes')
     estimate_time_offset: bool = setting(False, 'estimate the accel-minus-gyro time offset (1)')
+    estimate_sample_kernel: bool = setting(
+        True, "estimate the gyros' and the accelerometers' sampling kernels (2): 0 interval "
+        'means, 1 point samples (a point sample read as a mean is (omega dt)^2 / 24 too large '
+        'in a turn)')
     # --- measurements --------------------------------------------------------------------
     update_rate_hz: float = setting(10.0, 'rate of the zero-velocity (lever-arm) updates', 0.1,
                                     1000.0)
@@ -98,6 +102,9 @@ class EstimatorConfig:
     lever_arm_sigma_m: float = setting(0.05, 'prior sigma of the reference point offset', 1e-9)
     mounting_sigma_rad: float = setting(3e-3, 'least prior sigma of the mounting rotation', 1e-9)
     time_offset_sigma_s: float = setting(1e-3, 'prior sigma of the time offset', 1e-12)
+    sample_kernel_sigma: float = setting(
+        2.0, "prior sigma of the sampling kernels about the declared imu_sample_type's (point "
+        'samples are 1 from interval means)', 1e-6)
     prior_sigma_scale: float = setting(1.0, 'multiplies the grade sigmas used as the prior', 1e-3)
     noise_source: Literal['grade', 'data'] = setting(
         'data', "process noise measured from the stationary windows ('data', Allan deviation "
@@ -135,7 +142,9 @@ class EstimatorConfig:
     def estimated_groups(self) -> tuple[str, ...]:
         """The sensor-error and auxiliary groups switched on, in state order."""
         names = (g.name for g in registry.GROUPS if g.name != 'mounting')  # state order
-        out = [n for n in names if getattr(self, f'estimate_{n}')]
+        out = [n for n in names
+               if getattr(self, f'estimate_{n.removeprefix("gyro_").removeprefix("accel_")}'
+                          if n.endswith('sample_kernel') else f'estimate_{n}')]
         if self.attitude_aiding:
             out.append('mounting')
         return tuple(out)

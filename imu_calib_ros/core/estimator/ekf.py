@@ -73,7 +73,7 @@ def chunk_transition_rows(layout: StateLayout, R_enu_imu: FloatArray, f_enu_m_s2
         if Dg_inv is not None:
             left = left @ Dg_inv
         left = left.transpose(0, 2, 1, 3).reshape(B, 6, 3 * n)
-        g = left @ Mg.reshape(B, 3 * n, Mg.shape[-1])  # (B, 6, 21)
+        g = left @ Mg.reshape(B, 3 * n, Mg.shape[-1])  # (B, 6, 22)
         g = g[..., layout.gyro_cols]
         rows[:, 0:3, gi] = -g[:, 0:3]
         rows[:, 3:6, gi] = g[:, 3:6]
@@ -101,7 +101,7 @@ def chunk_transitions(layout: StateLayout, R_enu_imu: FloatArray, f_enu_m_s2: Fl
     f_enu_m_s2:
         ``(B, n, 3)`` mean specific force per sample in ENU (``R f``).
     Mg, Ma:
-        ``(B, n, 3, 21)``, ``(B, n, 3, 25)`` sensor Jacobians (:mod:`.error_model`) on the
+        ``(B, n, 3, 22)``, ``(B, n, 3, 26)`` sensor Jacobians (:mod:`.error_model`) on the
         compensated samples.
     dt_s:
         ``(B, n)`` sample intervals.

@@ -47,7 +47,7 @@ GROUPS: tuple[tuple[str, int, float, str, str], ...] = tuple(
 GROUP_INFO = {g[0]: g for g in GROUPS + ((CHAIN_GROUP, 0, URAD, 'urad', ''),)}
 GYRO_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'g')
 ACCEL_GROUPS = tuple(g[0] for g in GROUPS if g[4] == 'a')
-N_GYRO = sum(g[1] for g in GROUPS if g[4] == 'g')  # 21 columns of the full M_g
+N_GYRO = sum(g[1] for g in GROUPS if g[4] == 'g')  # 22 columns of the full M_g
 N_ACCEL = sum(g[1] for g in GROUPS if g[4] == 'a')  # 26 columns of the full M_a
 
 # index pairs of the off-diagonal parameters (row i, column j); row-major order
@@ -68,10 +68,13 @@ _GYRO_COLS = _offsets(GYRO_GROUPS)
 _ACCEL_COLS = _offsets(ACCEL_GROUPS)
 
 
-def gyro_jacobian(omega_rad_s: FloatArray, f_m_s2: FloatArray) -> FloatArray:
-    """``M_g = d(gyro_meas)/d(theta_g)`` of CONTRACT 3, shape ``(N, 3, 21)``, SI units.
+def gyro_jacobian(omega_rad_s: FloatArray, f_m_s2: FloatArray,
+                  omega_curvature_rad_s: FloatArray | None = None) -> FloatArray:
+    """``M_g = d(gyro_meas)/d(theta_g)`` of CONTRACT 3, shape ``(N, 3, 22)``, SI units.
 
-    Columns: bg (3), diag Kg (3), ag (3), symmetric Kg_ij for (01, 02, 12), G row-major (9).
+    Columns: bg (3), diag Kg (3), ag (3), symmetric Kg_ij for (01, 02, 12), G row-major (9),
+    the sampling kernel (column ``omega_curvature`` = ``omega'' dt^2``,
+    :func:`sample_kernel_column`).
     """
     w = np.atleast_2d(omega_rad_s)
     f = np.atleast_2d(f_m_s2)
@@ -88,18 +91,23 @@ def gyro_jacobian(omega_rad_s: FloatArray, f_m_s2: FloatArray) -> FloatArray:
     c0 = _GYRO_COLS['gyro_g_sensitivity'].start
     for i in range(3):
         m[:, i, c0 + 3 * i:c0 + 3 * i + 3] = f
+    if omega_curvature_rad_s is not None:
+        m[:, :, _GYRO_COLS['gyro_sample_kernel'].start] = sample_kernel_column(
+            omega_curvature_rad_s)
     return m
 
 
 def accel_jacobian(omega_rad_s: FloatArray, omega_dot_rad_s2: FloatArray, f_m_s2: FloatArray,
-                   f_dot_m_s3: FloatArray | None = None) -> FloatArray:
+                   f_dot_m_s3: FloatArray | None = None,
+                   f_curvature_m_s2: FloatArray | None = None) -> FloatArray:
     """``M_a = d(accel_meas)/d(theta_a)`` of CONTRACT 3, shape ``(N, 3, 26)``, SI units.
 
     Columns: ba (3), diag Ka (3), aa (3), Ka off-diagonal (01, 02, 10, 12, 20, 21), qa (3),
     size effect r_i[j] in the same order (Kozlov & Kapralov eq. 1:
     ``d/dr_i[j] (omega_dot x r_i + omega x (omega x r_i))_i = (e_i x omega_dot)_j +
-    omega_i omega_j`` for j != i), and the accel-minus-gyro time offset (column ``f_dot``:
-    accelerometers sampled ``tau`` late read ``f(t + tau) = f + f_dot tau``).
+    omega_i omega_j`` for j != i), the accel-minus-gyro time offset (column ``f_dot``:
+    accelerometers sampled ``tau`` late read ``f(t + tau) = f + f_dot tau``) and the sampling
+    kernel ``s`` (column ``f_curvature`` = ``f'' dt^2``, see :func:`sample_kernel_column`).
     """
     w = np.atleast_2d(omega_rad_s)
     wd = np.atleast_2d(omega_dot_rad_s2)
@@ -121,7 +129,29 @@ def accel_jacobian(omega_rad_s: FloatArray, omega_dot_rad_s2: FloatArray, f_m_s2
         m[:, i, c_r + k] = sign * wd[:, l_ax] + w[:, i] * w[:, j]
     if f_dot_m_s3 is not None:
         m[:, :, _ACCEL_COLS['time_offset'].start] = np.atleast_2d(f_dot_m_s3)
+    if f_curvature_m_s2 is not None:
+        m[:, :, _ACCEL_COLS['accel_sample_kernel'].start] = sample_kernel_column(
+            f_curvature_m_s2)
     return m
+
+
+def sample_kernel_column(curvature: FloatArray) -> FloatArray:
+    """``d(meas)/ds`` of a sampling kernel ``s`` from ``f'' dt^2`` (the second difference of
+    the rate or specific force ``f`` over one sample period, ``(N, 3)``).
+
+    A sample that averages ``f`` with a kernel of variance ``V`` about its centre reads
+    ``f(t_c) + V f'' / 2``: an interval mean (``V = dt^2 / 12``) ``f(t_c) + f'' dt^2 / 24``, a
+    point sample (``V = 0``) ``f(t_c)``. Taking CONTRACT 1's interval mean as the model, a
+    kernel ``s = 1 - 12 V / dt^2`` (0: interval means, 1: point samples, below 0: a
+    smoothing filter; the trapezoid of two point samples is ``-2``) reads
+    ``mean + s (-f'' dt^2 / 24)``. The centre's offset from the interval's middle is common to
+    gyros and accelerometers: the joint latency. Rotating gravity has ``f'' = -omega^2 f``:
+    point samples read as means are ``(omega dt)^2 / 24`` too large, 4 ppm at 1 rad/s and
+    100 Hz (session 23: 2.6-6.6 sigma of a navigation unit's accelerometer scales). A gyro's
+    ``omega''`` is at the corners of a rate ramp: point samples read as means leave the
+    attitude ``alpha dt^2 / 24`` off through a ramp of ``alpha``, and gravity turns that into
+    velocity (40 um/s over a 1 s ramp of 1 rad/s^2 at 100 Hz)."""
+    return -np.atleast_2d(curvature) / 24.0
 
 
 @dataclass(frozen=True)
@@ -253,10 +283,11 @@ _ACCEL_ENTRIES = _theta_entries(_ACCEL_COLS)
 
 
 def theta_from_errors(errors: Any) -> tuple[FloatArray, FloatArray]:
-    """The full gyro (21,) and accel (25,) parameter vectors of a ``SensorErrors`` (the
+    """The full gyro (22,) and accel (26,) parameter vectors of a ``SensorErrors`` (the
     registry's groups; Kg's pairs as the mean of both halves).
 
-    The time offset (last accel entry) is not part of ``SensorErrors`` and is returned as 0.
+    The auxiliary states (the time offset, the sampling kernels) are not part of
+    ``SensorErrors`` and are returned as 0.
     """
     out = []
     for n, entries in ((N_GYRO, _GYRO_ENTRIES), (N_ACCEL, _ACCEL_ENTRIES)):
@@ -336,7 +367,9 @@ def compensation_inverses(errors: object, omega_hat: FloatArray, f_hat: FloatArr
 
 
 def compensated_jacobians(errors: object, omega_hat: FloatArray, omega_dot: FloatArray,
-                          f_hat: FloatArray, f_dot: FloatArray | None = None) -> tuple[
+                          f_hat: FloatArray, f_dot: FloatArray | None = None,
+                          omega_curvature: FloatArray | None = None,
+                          f_curvature: FloatArray | None = None) -> tuple[
                               FloatArray, FloatArray]:
     """Jacobians of the *compensated* samples: ``omega_hat - omega = -Jg x_g``,
     ``f_hat - f = -Ja x_a`` (``x`` = estimate minus truth), to first order.
@@ -349,7 +382,7 @@ def compensated_jacobians(errors: object, omega_hat: FloatArray, omega_dot: Floa
     centripetal size-effect term with ``omega_hat - omega`` (~2 r omega |d omega|, 40 ng for a
     navigation-grade IMU with r = 10 mm at 1 rad/s and 20 ppm scale error).
     """
-    Mg = gyro_jacobian(omega_hat, f_hat)
-    Ma = accel_jacobian(omega_hat, omega_dot, f_hat, f_dot)
+    Mg = gyro_jacobian(omega_hat, f_hat, omega_curvature)
+    Ma = accel_jacobian(omega_hat, omega_dot, f_hat, f_dot, f_curvature)
     Dg_inv, Da_inv = compensation_inverses(errors, omega_hat, f_hat)
     return Dg_inv @ Mg, Da_inv @ Ma

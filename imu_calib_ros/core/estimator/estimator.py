@@ -72,7 +72,7 @@ from .noise import (MEMS_BIAS_WALK, ProcessNoise, bias_random_walk, bias_walk_so
                     check_grade_hint, instability_covered, white_noise_densities,
                     white_noise_from_window)
 from .priors import (COARSE_FLOOR, RAW_PRIOR, WorkingPoint, prior_point,
-                     prior_shift, prior_sigmas, prior_vector)
+                     prior_shift, prior_sigmas, prior_vector, sample_kernel_mean)
 from .propagation import Block, omega_dot_half_span, propagate_block
 from .result import (CONTRACT_KEYS, Estimate, calibration_result, estimator_extra,
                      parameter_covariance, snapshot_extra, values_of, with_values)
@@ -130,7 +130,7 @@ class CalibrationEstimator:
     """
 
     # the working point the navigator compensates with (the feedback moves it)
-    _theta_g: FloatArray  # (21,) gyro parameters, error_model order
+    _theta_g: FloatArray  # (22,) gyro parameters, error_model order
     _theta_a: FloatArray  # (26,) accelerometer parameters
     _rho: FloatArray  # (3,) lever arm, IMU frame [m]
     _mount: FloatArray  # (3,) mounting rotation vector, IMU frame [rad]
@@ -816,12 +816,16 @@ class CalibrationEstimator:
         look-ahead) from the navigator's state with the current estimate."""
         assert self._nav is not None
         tau = self._theta_a[em.accel_cols('time_offset')][0]
+        kernel = None
+        if 'accel_sample_kernel' in self.layout.groups:
+            kernel = (float(self._theta_g[em.gyro_cols('gyro_sample_kernel')][0]),
+                      float(self._theta_a[em.accel_cols('accel_sample_kernel')][0]))
         return propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
                                self._nominal_dt, B, n, self.layout,
                                self.fixture.site.omega_ie_enu, self.fixture.concurrent,
                                self._process_noise.white[1] / math.sqrt(self._nominal_dt),
                                ahead_repeated, self.config.imu_sample_type == 'point',
-                               self._rho)
+                               self._rho, kernel)
 
     def _record_history(self, force: bool = False) -> None:
         """Offer the current values and sigmas (SI) to :attr:`history` (decimated there)."""
@@ -1723,7 +1727,8 @@ class CalibrationEstimator:
         starting estimate's, else the prior mean (fresh arrays)."""
         init = self._initial
         if init is None:
-            return prior_point(self.fixture, self.start, self.layout)
+            return prior_point(self.fixture, self.start, self.layout,
+                               sample_kernel_mean(self.config))
         return (init.theta_gyro.copy(), init.theta_accel.copy(), init.lever_arm_imu_m.copy(),
                 init.mounting_rotvec_rad.copy())
 
@@ -1743,7 +1748,8 @@ class CalibrationEstimator:
 
     def _prior_mean(self) -> FloatArray:
         """Where pass 1 starts (:func:`.priors.prior_point`), as calibration-state values."""
-        return values_of(self.layout, *prior_point(self.fixture, self.start, self.layout))
+        return values_of(self.layout, *prior_point(self.fixture, self.start, self.layout,
+                                                   sample_kernel_mean(self.config)))
 
     def start_values(self) -> FloatArray:
         """Where this pass started, as calibration-state values (SI): the previous pass's

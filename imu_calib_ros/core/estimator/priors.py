@@ -17,7 +17,7 @@ by 5.4 sigma).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,7 +34,7 @@ if TYPE_CHECKING:
     from .result import Estimate
 
 FloatArray = NDArray[np.float64]
-# the filter's working point: theta_gyro (21,), theta_accel (25,) in error_model order, the
+# the filter's working point: theta_gyro (22,), theta_accel (26,) in error_model order, the
 # lever arm (3,) [m] and the mounting rotation vector (3,) [rad], both in the IMU frame
 WorkingPoint = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
 
@@ -90,6 +90,8 @@ def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
                 p = np.where(h > 0, np.where(measured, np.maximum(p, h), h), 0.0)
             res[name] = p
     res['time_offset'] = np.full(1, config.time_offset_sigma_s)
+    res['gyro_sample_kernel'] = np.full(1, config.sample_kernel_sigma)
+    res['accel_sample_kernel'] = np.full(1, config.sample_kernel_sigma)
     res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
     mount = config.mounting_sigma_rad
     if start is not None:
@@ -112,21 +114,63 @@ def nominal_lever_arm(fixture: Fixture) -> FloatArray:
     return fixture.R_enu_imu(q0).T @ fixture.p_enu_m(q0)
 
 
+def sample_kernel_mean(config: EstimatorConfig) -> float:
+    """The prior mean of the sampling kernels (:func:`.error_model.sample_kernel_column`): 0
+    for interval means (CONTRACT 1's default); for declared point samples the kernel of what
+    the estimator makes of them, the trapezoid of each sample and the one before
+    (:func:`.buffers.point_to_mean`: two points half a period either side of the interval's
+    middle, variance ``dt^2 / 4``, so ``1 - 12 / 4 = -2``)."""
+    return -2.0 if config.imu_sample_type == 'point' else 0.0
+
+
+#: a sampling kernel this many sigmas from the declared one is named (:func:`kernel_note`)
+KERNEL_NOTE_SIGMAS = 4.0
+
+
+def kernel_note(estimator_extra: dict[str, Any], config: EstimatorConfig) -> str | None:
+    """One line when the sampling kernels the data chose are not the declared
+    ``imu_sample_type``'s (beyond :data:`KERNEL_NOTE_SIGMAS` of their sigmas), else None:
+    what the samples are, and that the filter took them so (it estimated them)."""
+    mean = sample_kernel_mean(config)
+    got = []
+    for side, what in (('gyro', 'gyros'), ('accel', 'accelerometers')):
+        k, sd = estimator_extra.get(f'{side}_sample_kernel'), \
+            estimator_extra.get(f'{side}_sample_kernel_sigma')
+        if k is None or not sd:
+            continue
+        got.append((what, float(k), float(sd[0])))
+    if not any(abs(k - mean) > KERNEL_NOTE_SIGMAS * sd for _, k, sd in got):
+        return None
+    return (f'the IMU samples are not what imu_sample_type ({config.imu_sample_type}) says: '
+            'the sampling kernels came out '
+            + ', '.join(f'{what} {k:.2f} +- {sd:.2f}' for what, k, sd in got)
+            + f' (expected {mean:g}; 0 interval means, 1 point samples'
+            + (', -2 the trapezoids of declared point samples' if mean else '')
+            + ', below 0 a smoothing filter); the filter estimated them, so the calibration '
+            'holds')
+
+
 def prior_point(fixture: Fixture, start: CoarseStart | None,
-                layout: em.StateLayout) -> WorkingPoint:
+                layout: em.StateLayout, sample_kernel: float = 0.0) -> WorkingPoint:
     """The prior mean as fresh parameter arrays: the coarse start (issue 11), else no sensor
     errors; the nominal lever arm in the (mounted) IMU frame; the measured mounting rotation,
-    else none. A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
+    else none; the sampling kernels ``sample_kernel`` (:func:`sample_kernel_mean`) when they are
+    states. A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
     a coarse G of 1.4e-7 (rad/s)/(m/s^2) kept under a grade that has no G acted as an
     unmodelled 0.3 deg/h bias (6 sigma)."""
-    if start is None:
-        return (np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL), nominal_lever_arm(fixture),
-                np.zeros(3))
-    R_m = Rotation.from_rotvec(start.mounting_rotvec_rad).as_matrix()
     tg, ta = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
-    tg[layout.gyro_cols] = start.theta_gyro[layout.gyro_cols]
-    ta[layout.accel_cols] = start.theta_accel[layout.accel_cols]
-    return tg, ta, R_m.T @ nominal_lever_arm(fixture), start.mounting_rotvec_rad.copy()
+    if start is None:
+        lever, mount = nominal_lever_arm(fixture), np.zeros(3)
+    else:
+        R_m = Rotation.from_rotvec(start.mounting_rotvec_rad).as_matrix()
+        tg[layout.gyro_cols] = start.theta_gyro[layout.gyro_cols]
+        ta[layout.accel_cols] = start.theta_accel[layout.accel_cols]
+        lever, mount = R_m.T @ nominal_lever_arm(fixture), start.mounting_rotvec_rad.copy()
+    if 'gyro_sample_kernel' in layout.groups:
+        tg[em.gyro_cols('gyro_sample_kernel')] = sample_kernel
+    if 'accel_sample_kernel' in layout.groups:
+        ta[em.accel_cols('accel_sample_kernel')] = sample_kernel
+    return tg, ta, lever, mount
 
 
 def prior_shift(initial: Estimate | None, labels: tuple[str, ...],

@@ -337,6 +337,18 @@ def _wide_differences(ww: FloatArray, ff: FloatArray, dt_all: FloatArray, h: int
     return out[0] / span, out[1] / span
 
 
+def _curvature(x: FloatArray, gap: NDArray[np.bool_]) -> FloatArray:
+    """``f'' dt^2`` of every row of ``x (N, 3)``: its second difference, zero where it would
+    take a row across a gap (``gap (N - 1,)``, of the intervals between rows) and the first
+    and last rows the same as their neighbours'."""
+    d2 = np.zeros_like(x)
+    if len(x) < 3:
+        return d2
+    d2[1:-1] = np.where((gap[:-1] | gap[1:])[:, None], 0.0, x[2:] - 2.0 * x[1:-1] + x[:-2])
+    d2[0], d2[-1] = d2[1], d2[-2]
+    return d2
+
+
 #: a third difference beyond this many sigmas of the noise's own (``sqrt(20)`` per-sample
 #: sigmas) marks a corner of the motion (:func:`corner_variance`)
 CORNER_SIGMAS = 5.0
@@ -470,7 +482,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
                     table: bool = False,
                     accel_sigma: float | None = None,
                     ahead_repeated: bool = False, trapezoid: bool = False,
-                    lever_arm_imu_m: FloatArray | None = None) -> Block:
+                    lever_arm_imu_m: FloatArray | None = None,
+                    sample_kernel: tuple[float, float] | None = None) -> Block:
     """Propagate ``nav`` (in place) over ``B`` chunks of ``n`` samples.
 
     Parameters
@@ -504,6 +517,10 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     lever_arm_imu_m :
         The reference point from the axes' common point, IMU frame (a table's Jacobians
         take its acceleration about the axes, :func:`table_specific_force`); None: none.
+    sample_kernel :
+        The estimates of the gyros' and the accelerometers' sampling kernels (0: interval
+        means, 1: point samples; :func:`~.error_model.sample_kernel_column`), None when they
+        are not states.
     """
     m = B * n
     nom = nominal_dt_s
@@ -522,6 +539,7 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     dt_all = np.where(gap, nom, dt_all)
     ww = np.vstack([np.reshape(w_prev, (-1, 3)), w])  # (m + 2 h, 3): history, block, ahead
     ff = np.vstack([np.reshape(f_prev, (-1, 3)), f])
+    w_in = ww
     # of the compensated rates: with raw ones, a raw unit's 0.5 % scale error made the
     # size effect 1 % (6 sigma) wrong (issue 11); the gyro part needs no omega_dot
     comp = BlockCompensation.of(errors) if np.isfinite(ww.sum() + ff.sum()) else None
@@ -555,6 +573,20 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         w_s = w_c[:m]
     if time_offset_s != 0.0:
         f_c = f_c - time_offset_s * np.vstack([fd, fd[-1:]])
+    w2 = None
+    if sample_kernel is not None:
+        # the samples' own curvature (their noise through (-1, 26, -1) / 24 at s = 1, its sum
+        # unchanged): the gyros' Jacobian below takes the same, the accelerometers' the
+        # smooth one (the navigation can't wait for it)
+        made_up = gap.copy()
+        if prev is None:
+            made_up[:h] = True
+        if ahead_repeated:
+            made_up[-h:] = True
+        w2 = _curvature(w_in, made_up)[h:h + m + 1]
+        w_c = w_c - sample_kernel[0] * em.sample_kernel_column(w2)
+        f_c = f_c - sample_kernel[1] * em.sample_kernel_column(
+            _curvature(ff, made_up)[h:h + m + 1])
     dt = dt_all[h - 1:h - 1 + m]
     if n_gaps:
         nav.reset_memory()
@@ -564,15 +596,27 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     # sensor Jacobians on the compensated samples; on a table, their specific-force regressor
     # is the block's mean navigation-frame specific force in each sample's IMU frame
     # (:func:`table_specific_force`), not the sample itself
+    f_turn = None  # the kernel's regressor: the table's turn of the mean specific force
     if table:
         acc = None  # the reference point's acceleration about the axes (IMU frame)
         if lever_arm_imu_m is not None and np.any(lever_arm_imu_m):
             acc = lever_acceleration(w_s, wd, np.asarray(lever_arm_imu_m, float))
         f_j = table_specific_force(R_mid, out.f_enu_m_s2, acc)
+        # without the lever arm's acceleration: its omega_dot is a difference of noisy rates
+        # (a tactical gyro's 0.02 rad/s^2 x 18 cm, 4e-3 m/s^2 a sample, as much as gravity's
+        # curvature at 2 rad/s), errors in variables that took the kernel to -30 +- 0.6 under
+        # Kozlov's oscillations 18 cm off the axes (truth 0; without it -0.06 +- 1.99: a
+        # heading oscillation turns no gravity, and the arm's own curvature, left out, is
+        # ~1e-4 m/s^2 a sample there)
+        f_turn = f_j if acc is None else table_specific_force(R_mid, out.f_enu_m_s2)
     else:
         f_j = f_c[:m]
-    Mg = em.gyro_jacobian(w_s, f_j)
-    Ma = em.accel_jacobian(w_c[:m], wd, f_j, fd)
+    f2 = None
+    if w2 is not None:  # the accelerometers' regressor's curvature, across no gap
+        w2 = w2[:m]
+        f2 = _curvature(f_j if f_turn is None else f_turn, gap[h:h + m - 1])
+    Mg = em.gyro_jacobian(w_s, f_j, w2)
+    Ma = em.accel_jacobian(w_c[:m], wd, f_j, fd, f2)
     Dg_inv, Da_inv = em.compensation_inverses(errors, w_s, f_j)
     rows = chunk_transition_rows(layout, R_mid.reshape(B, n, 3, 3),
                                  out.f_enu_m_s2.reshape(B, n, 3),

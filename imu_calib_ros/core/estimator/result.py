@@ -32,8 +32,8 @@ CONTRACT_KEYS: dict[str, tuple[str, ...]] = dict(registry.GROUPS_OF_KEY)
 class Estimate:
     """Full estimate in SI: sensor parameters, auxiliary states and their covariance."""
 
-    theta_gyro: FloatArray  # (21,) full gyro parameter vector (error_model order)
-    theta_accel: FloatArray  # (25,) full accel parameter vector
+    theta_gyro: FloatArray  # (22,) full gyro parameter vector (error_model order)
+    theta_accel: FloatArray  # (26,) full accel parameter vector
     lever_arm_imu_m: FloatArray  # (3,) reference point offset from the axes, IMU frame
     mounting_rotvec_rad: FloatArray  # (3,) mounting rotation estimate, IMU frame
     labels: tuple[str, ...]  # labels of the calibration states (no psi, dv)
@@ -156,12 +156,15 @@ def estimator_extra(est: Estimate, sd: FloatArray, layout: StateLayout,
         'lever_arm_imu_m': [float(v) for v in est.lever_arm_imu_m],
         'mounting_rotvec_rad': [float(v) for v in est.mounting_rotvec_rad],
         'time_offset_s': float(est.theta_accel[em.accel_cols('time_offset')][0]),
+        'gyro_sample_kernel': float(est.theta_gyro[em.gyro_cols('gyro_sample_kernel')][0]),
+        'accel_sample_kernel': float(est.theta_accel[em.accel_cols('accel_sample_kernel')][0]),
         'estimated_groups': list(layout.groups),
         'attitude_aiding': bool(attitude_aiding),
     }
     if start is not None:
         out['coarse_start'] = start.summary()
-    for g in ('lever_arm', 'mounting', 'time_offset'):
+    for g in ('lever_arm', 'mounting', 'time_offset', 'gyro_sample_kernel',
+              'accel_sample_kernel'):
         if g in layout.slices:
             sl = slice(layout.slices[g].start - 6, layout.slices[g].stop - 6)
             out[f'{g}_sigma'] = [float(v) for v in sd[sl]]
