@@ -816,8 +816,8 @@ class CalibrationEstimator:
         look-ahead) from the navigator's state with the current estimate."""
         assert self._nav is not None
         tau = self._theta_a[em.accel_cols('time_offset')][0]
-        kernel = None
-        if 'accel_sample_kernel' in self.layout.groups:
+        kernel = None  # the kernels: states, or assumed with one that is
+        if {'gyro_sample_kernel', 'accel_sample_kernel'} & set(self.layout.groups):
             kernel = (float(self._theta_g[em.gyro_cols('gyro_sample_kernel')][0]),
                       float(self._theta_a[em.accel_cols('accel_sample_kernel')][0]))
         return propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
@@ -996,6 +996,11 @@ class CalibrationEstimator:
             and st.gyro_noise_rad_s_rt_hz > cfg.aiding_gyro_noise_rad_s_rt_hz)
         self.attitude_aiding = bool(aiding)
         self._prior = prior_sigmas(self.grade, cfg, st)
+        if not self.fixture.concurrent:
+            # an arm's Jacobians take the samples as their specific force, and the kernel's
+            # regressor would be their second difference: errors in variables, as for noisy
+            # gyros (priors.KERNEL_GYRO_NOISE_RAD_S_RT_HZ); the declared type's is assumed
+            self._prior['accel_sample_kernel'] = np.zeros(1)
         groups = cfg.estimated_groups
         if self.attitude_aiding and 'mounting' not in groups:
             groups = groups + ('mounting',)

@@ -90,7 +90,10 @@ def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
                 p = np.where(h > 0, np.where(measured, np.maximum(p, h), h), 0.0)
             res[name] = p
     res['time_offset'] = np.full(1, config.time_offset_sigma_s)
-    res['gyro_sample_kernel'] = np.full(1, config.sample_kernel_sigma)
+    noise = (start.gyro_noise_rad_s_rt_hz if start is not None
+             else grade.gyro_noise_rad_s_rt_hz if grade is not None else 0.0)
+    res['gyro_sample_kernel'] = np.full(
+        1, config.sample_kernel_sigma if noise <= KERNEL_GYRO_NOISE_RAD_S_RT_HZ else 0.0)
     res['accel_sample_kernel'] = np.full(1, config.sample_kernel_sigma)
     res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
     mount = config.mounting_sigma_rad
@@ -125,6 +128,15 @@ def sample_kernel_mean(config: EstimatorConfig) -> float:
 
 #: a sampling kernel this many sigmas from the declared one is named (:func:`kernel_note`)
 KERNEL_NOTE_SIGMAS = 4.0
+#: the gyros' sampling kernel is a state only below this white noise [rad/s/sqrt(Hz)]. Its
+#: regressor is the samples' own second difference (propagation.propagate_block), whose
+#: noise the attitude shares: errors in variables that pull the kernel towards +12 by
+#: ``(N / N0)^2 / (1 + (N / N0)^2)``, N0 ~ 9e-5 on the grid's plans (session 24: consumer
+#: MEMS +10.5 +- 0.5, industrial +1..+6, tactical +0.3..+2.8 on interval means, one consumer
+#: gyro scale 4.9 sigma off with exit 0). Below 1e-5 (navigation units: 0.6-1.5e-6) the pull
+#: is under 0.16 of the point-to-mean distance; above it the kernel's own effect on the
+#: attitude, ``alpha dt^2 / 24`` through a ramp, is below a tenth of the noise's over it.
+KERNEL_GYRO_NOISE_RAD_S_RT_HZ = 1e-5
 
 
 def kernel_note(estimator_extra: dict[str, Any], config: EstimatorConfig) -> str | None:
@@ -154,8 +166,7 @@ def prior_point(fixture: Fixture, start: CoarseStart | None,
                 layout: em.StateLayout, sample_kernel: float = 0.0) -> WorkingPoint:
     """The prior mean as fresh parameter arrays: the coarse start (issue 11), else no sensor
     errors; the nominal lever arm in the (mounted) IMU frame; the measured mounting rotation,
-    else none; the sampling kernels ``sample_kernel`` (:func:`sample_kernel_mean`) when they are
-    states. A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
+    else none; the sampling kernels ``sample_kernel`` (:func:`sample_kernel_mean`). A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
     a coarse G of 1.4e-7 (rad/s)/(m/s^2) kept under a grade that has no G acted as an
     unmodelled 0.3 deg/h bias (6 sigma)."""
     tg, ta = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
@@ -166,10 +177,9 @@ def prior_point(fixture: Fixture, start: CoarseStart | None,
         tg[layout.gyro_cols] = start.theta_gyro[layout.gyro_cols]
         ta[layout.accel_cols] = start.theta_accel[layout.accel_cols]
         lever, mount = R_m.T @ nominal_lever_arm(fixture), start.mounting_rotvec_rad.copy()
-    if 'gyro_sample_kernel' in layout.groups:
-        tg[em.gyro_cols('gyro_sample_kernel')] = sample_kernel
-    if 'accel_sample_kernel' in layout.groups:
-        ta[em.accel_cols('accel_sample_kernel')] = sample_kernel
+    # the declared type's kernels, states or not (a kernel that is no state is assumed)
+    tg[em.gyro_cols('gyro_sample_kernel')] = sample_kernel
+    ta[em.accel_cols('accel_sample_kernel')] = sample_kernel
     return tg, ta, lever, mount
 
 
