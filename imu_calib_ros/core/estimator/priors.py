@@ -166,8 +166,9 @@ def prior_point(fixture: Fixture, start: CoarseStart | None,
                 layout: em.StateLayout, sample_kernel: float = 0.0) -> WorkingPoint:
     """The prior mean as fresh parameter arrays: the coarse start (issue 11), else no sensor
     errors; the nominal lever arm in the (mounted) IMU frame; the measured mounting rotation,
-    else none; the sampling kernels ``sample_kernel`` (:func:`sample_kernel_mean`). A group the filter does not estimate keeps its assumed value, zero (CONTRACT 4):
-    a coarse G of 1.4e-7 (rad/s)/(m/s^2) kept under a grade that has no G acted as an
+    else none; the sampling kernels ``sample_kernel`` (:func:`sample_kernel_mean`), states or
+    not. Another group the filter does not estimate keeps its assumed value, zero (CONTRACT
+    4): a coarse G of 1.4e-7 (rad/s)/(m/s^2) kept under a grade that has no G acted as an
     unmodelled 0.3 deg/h bias (6 sigma)."""
     tg, ta = np.zeros(em.N_GYRO), np.zeros(em.N_ACCEL)
     if start is None:
