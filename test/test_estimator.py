@@ -82,7 +82,7 @@ def test_mems_with_encoder_aiding_recovered_within_sigma() -> None:
     # about the vertical, which a MEMS gyro cannot see; the accelerometers' sampling kernel:
     # a point-sampled accelerometer reads (omega dt)^2 g / 24 more in a turn, 4 ug at 1 rad/s
     # and 100 Hz against this one's 1.2 mg a sample (the gyros' is no state for MEMS gyros:
-    # priors.KERNEL_GYRO_NOISE_RAD_S_RT_HZ)
+    # priors.gyro_kernel_estimable)
     assert est.offset_joints == (0, 1)
     assert 'gyro_sample_kernel' in est.dropped_groups
     check_consistent(est, sim, weak=('gyro_g_sensitivity', 'accel_asymmetry',

@@ -14,6 +14,7 @@ declared point samples' trapezoids.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -27,22 +28,26 @@ from imu_calib_ros.core.fixture import load_fixture
 from imu_calib_ros.testing.world_cases import compare_calibration, make_case
 from msg_adapters.bag import iter_bag
 
-#: (sample type the bag holds, imu_sample_type declared, the kernel the samples then have)
-CASES = {'point read as mean': ('point', 'mean', 1.0),
-         'mean': ('interval_mean', 'mean', 0.0),
-         'point declared': ('point', 'point', -2.0)}
+#: (sample type the bag holds, imu_sample_type declared, the kernel the samples then have,
+#: the kernels estimated)
+CASES = {'point read as mean': ('point', 'mean', 1.0, True),
+         'mean': ('interval_mean', 'mean', 0.0, True),
+         'point declared': ('point', 'point', -2.0, True),
+         # assumed at the declared type's, not estimated: the trapezoid's kernel applied
+         'point declared, kernels assumed': ('point', 'point', -2.0, False)}
 
 
 @pytest.mark.parametrize('case', list(CASES))
 def test_the_kernels_are_found_and_the_scales_stay_honest(tmp_path: Path, case: str) -> None:
-    sample_type, declared, kernel = CASES[case]
+    sample_type, declared, kernel, estimated = CASES[case]
     bag, truth = make_case(tmp_path, unit='nav', seed=8, sample_type=sample_type)
-    cfg = dataclasses.replace(load_estimator_config(None), imu_sample_type=declared)
+    cfg = dataclasses.replace(load_estimator_config(None), imu_sample_type=declared,
+                              estimate_sample_kernel=estimated)
     run = replay_run(lambda: iter_bag(bag), load_fixture(str(truth.fixture_path)), None, cfg)
     assert run.verdict.passed, run.verdict.line
     est = run.estimator.estimate_state()
     sd = np.sqrt(np.diag(est.covariance))
-    for name in ('gyro_sample_kernel[0]', 'accel_sample_kernel[0]'):
+    for name in ('gyro_sample_kernel[0]', 'accel_sample_kernel[0]') if estimated else ():
         k = est.labels.index(name)
         # the kernel the samples have, within 3 of its sigmas (0.09 and 0.16 here: the
         # kernels are 1 apart, so a point sample is never taken for a mean)
@@ -64,3 +69,57 @@ def test_the_kernels_are_found_and_the_scales_stay_honest(tmp_path: Path, case: 
     assert len(scales) == 3 and max(map(abs, scales)) < 3.0, scales
     worst = max(z, key=lambda n: abs(z[n]))
     assert abs(z[worst]) < 4.0, (worst, z[worst])
+
+
+def test_a_noisy_gyro_s_kernel_is_no_state(tmp_path: Path,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """The gyros' kernel regressor is the samples' own second difference, whose noise the
+    attitude shares: for a consumer MEMS gyro the kernel of interval means came out near +10
+    (the grid's 14 consumer runs: +9.1..+11.6, sigma 0.3-0.7), and one run's gyro scale 4.9
+    sigma off with exit 0. So it is a state only for gyros quieter than
+    ``priors.gyro_kernel_estimable``; here the mechanism, and the rule keeping it out."""
+    import imu_calib_ros.core.estimator.priors as priors
+    bag, truth = make_case(tmp_path, unit='consumer_mems', seed=1)
+    fx = load_fixture(str(truth.fixture_path))
+    cfg = dataclasses.replace(load_estimator_config(None), walk_profile=False)
+    run = replay_run(lambda: iter_bag(bag), fx, None, cfg)
+    assert 'gyro_sample_kernel' in run.estimator.dropped_groups
+    assert run.verdict.passed, run.verdict.line
+    monkeypatch.setattr(priors, 'KERNEL_GYRO_SAMPLE_NOISE_RAD_S', math.inf)
+    est = replay_run(lambda: iter_bag(bag), fx, None, cfg).estimator.estimate_state()
+    k = est.labels.index('gyro_sample_kernel[0]')
+    sd = math.sqrt(est.covariance[k, k])
+    # interval means (truth 0), pulled beyond a point sample's 1 and far beyond the kernel's
+    # own sigma (8.3 +- 0.84 here)
+    assert est.values[k] > 1.0 and est.values[k] / sd > 5.0, (est.values[k], sd)
+
+
+def test_which_gyros_have_a_kernel_state() -> None:
+    """Per-sample noise at most 1e-4 rad/s: navigation gyros (0.6-1.5e-6 rad/s/sqrt(Hz)) at
+    100 Hz to 2 kHz, not tactical ones (1.5-4.4e-5) nor MEMS, nor a gyro nobody measured."""
+    from imu_calib_ros.core.estimator.priors import gyro_kernel_estimable
+    for dt in (0.01, 0.005, 0.001, 0.0005):
+        assert gyro_kernel_estimable(1.5e-6, dt)
+    assert gyro_kernel_estimable(9e-6, 0.01) and not gyro_kernel_estimable(1.5e-5, 0.01)
+    assert not gyro_kernel_estimable(1.5e-5, 0.005)
+    assert not gyro_kernel_estimable(3.5e-5, 0.01)  # industrial MEMS
+    assert not gyro_kernel_estimable(math.nan, 0.01)
+    assert gyro_kernel_estimable(0.0, 0.01)  # noise-free synthetic data
+
+
+def test_the_note_asks_for_the_type_where_a_kernel_was_assumed() -> None:
+    """A quiet gyro's kernel says point samples, the accelerometers' (an arm's) was no
+    state: the calibration does not hold by itself, and the line says so."""
+    cfg = load_estimator_config(None)
+    both = {'gyro_sample_kernel': 0.97, 'gyro_sample_kernel_sigma': [0.1],
+            'accel_sample_kernel': 1.02, 'accel_sample_kernel_sigma': [0.09]}
+    note = kernel_note(both, cfg)
+    assert note is not None and note.endswith('so the calibration holds')
+    one = {'gyro_sample_kernel': 0.97, 'gyro_sample_kernel_sigma': [0.1],
+           'accel_sample_kernel': 0.0}
+    note = kernel_note(one, cfg)
+    assert note is not None and "accelerometers' kernel was not estimated" in note \
+        and 'imu_sample_type' in note and 'holds' not in note
+    # within 4 sigma of the declared type's: no line
+    assert kernel_note({**both, 'gyro_sample_kernel': 0.3, 'accel_sample_kernel': 0.3}, cfg) \
+        is None

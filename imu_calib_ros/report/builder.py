@@ -856,8 +856,10 @@ def _truth_by_label(truth: Any, labels: Sequence[str]) -> dict[str, float]:
     for lab in labels:
         g = lab.split('[')[0]
         i = int(lab.split('[')[1][:-1])
+        if g not in registry.GROUP_OF_NAME or registry.GROUP_OF_NAME[g].key is None:
+            continue  # an auxiliary state (time offset, sampling kernels): no truth here
         if g in em.GYRO_GROUPS:
             out[lab] = float(tg[em.gyro_cols(g)][i])
-        elif g in em.ACCEL_GROUPS and g != 'time_offset':
+        elif g in em.ACCEL_GROUPS:
             out[lab] = float(ta[em.accel_cols(g)][i])
     return out

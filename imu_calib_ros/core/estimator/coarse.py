@@ -155,6 +155,8 @@ class CoarseStart:
     #: (:class:`~..stamp_clock.StampRevisions`, None where none): carried to the later passes
     #: with the start, whose clocks apply them (:attr:`~..stamp_clock.StampClock.hindsight`)
     stamp_revisions: tuple[Any, Any] = (None, None)
+    #: the IMU's sample period the start was measured at [s] (0: not known)
+    imu_period_s: float = 0.0
 
     def determined(self, gyro_limit: float = GYRO_LIMIT, accel_limit: float = ACCEL_LIMIT
                    ) -> bool:
@@ -1319,7 +1321,7 @@ def _coarse_start(t_imu_ns: NDArray[np.int64], w: FloatArray, f: FloatArray,
     st = CoarseStart(theta_g, theta_a, sig_g, sig_a, mount, mount_sig, latency, s_sig,
                      noise_g, noise_a, rw_g, rw_a, len(wins), float(ts[-1] - ts[0]),
                      tuple(notes), zero, zero_sig, accel_reach=reach, base_tilt_rad=tilt,
-                     base_tilt_sigma_rad=tilt_sig)
+                     base_tilt_sigma_rad=tilt_sig, imu_period_s=dt)
     why = implausible(st) if np.any(zero) or np.any(tilt) else None
     if why is not None:
         raise _ZerosMisled(why)

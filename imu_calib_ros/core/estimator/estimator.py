@@ -816,10 +816,9 @@ class CalibrationEstimator:
         look-ahead) from the navigator's state with the current estimate."""
         assert self._nav is not None
         tau = self._theta_a[em.accel_cols('time_offset')][0]
-        kernel = None  # the kernels: states, or assumed with one that is
-        if {'gyro_sample_kernel', 'accel_sample_kernel'} & set(self.layout.groups):
-            kernel = (float(self._theta_g[em.gyro_cols('gyro_sample_kernel')][0]),
-                      float(self._theta_a[em.accel_cols('accel_sample_kernel')][0]))
+        # the sampling kernels, estimated or assumed (the declared type's: priors.prior_point)
+        kernel = (float(self._theta_g[em.gyro_cols('gyro_sample_kernel')][0]),
+                  float(self._theta_a[em.accel_cols('accel_sample_kernel')][0]))
         return propagate_block(self._nav, self._errors, tau, self._prev, t, w, f,
                                self._nominal_dt, B, n, self.layout,
                                self.fixture.site.omega_ie_enu, self.fixture.concurrent,
@@ -999,7 +998,7 @@ class CalibrationEstimator:
         if not self.fixture.concurrent:
             # an arm's Jacobians take the samples as their specific force, and the kernel's
             # regressor would be their second difference: errors in variables, as for noisy
-            # gyros (priors.KERNEL_GYRO_NOISE_RAD_S_RT_HZ); the declared type's is assumed
+            # gyros (priors.gyro_kernel_estimable); the declared type's is assumed
             self._prior['accel_sample_kernel'] = np.zeros(1)
         groups = cfg.estimated_groups
         if self.attitude_aiding and 'mounting' not in groups:

@@ -90,10 +90,11 @@ def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
                 p = np.where(h > 0, np.where(measured, np.maximum(p, h), h), 0.0)
             res[name] = p
     res['time_offset'] = np.full(1, config.time_offset_sigma_s)
-    noise = (start.gyro_noise_rad_s_rt_hz if start is not None
-             else grade.gyro_noise_rad_s_rt_hz if grade is not None else 0.0)
-    res['gyro_sample_kernel'] = np.full(
-        1, config.sample_kernel_sigma if noise <= KERNEL_GYRO_NOISE_RAD_S_RT_HZ else 0.0)
+    if start is not None:
+        kernel = gyro_kernel_estimable(start.gyro_noise_rad_s_rt_hz, start.imu_period_s)
+    else:
+        kernel = grade is not None and gyro_kernel_estimable(grade.gyro_noise_rad_s_rt_hz, 0.0)
+    res['gyro_sample_kernel'] = np.full(1, config.sample_kernel_sigma if kernel else 0.0)
     res['accel_sample_kernel'] = np.full(1, config.sample_kernel_sigma)
     res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
     mount = config.mounting_sigma_rad
@@ -128,38 +129,61 @@ def sample_kernel_mean(config: EstimatorConfig) -> float:
 
 #: a sampling kernel this many sigmas from the declared one is named (:func:`kernel_note`)
 KERNEL_NOTE_SIGMAS = 4.0
-#: the gyros' sampling kernel is a state only below this white noise [rad/s/sqrt(Hz)]. Its
-#: regressor is the samples' own second difference (propagation.propagate_block), whose
-#: noise the attitude shares: errors in variables that pull the kernel towards +12 by
-#: ``(N / N0)^2 / (1 + (N / N0)^2)``, N0 ~ 9e-5 on the grid's plans (session 24: consumer
-#: MEMS +10.5 +- 0.5, industrial +1..+6, tactical +0.3..+2.8 on interval means, one consumer
-#: gyro scale 4.9 sigma off with exit 0). Below 1e-5 (navigation units: 0.6-1.5e-6) the pull
-#: is under 0.16 of the point-to-mean distance; above it the kernel's own effect on the
-#: attitude, ``alpha dt^2 / 24`` through a ramp, is below a tenth of the noise's over it.
-KERNEL_GYRO_NOISE_RAD_S_RT_HZ = 1e-5
+#: the gyros' sampling kernel is a state only where their noise per sample is at most this
+#: [rad/s] (:func:`gyro_kernel_estimable`)
+KERNEL_GYRO_SAMPLE_NOISE_RAD_S = 1e-4
+
+
+def gyro_kernel_estimable(noise_rad_s_rt_hz: float, period_s: float) -> bool:
+    """Whether the gyros' sampling kernel can be a state: their white noise per sample,
+    ``N / sqrt(dt)`` (``dt`` 10 ms when not known), at most
+    :data:`KERNEL_GYRO_SAMPLE_NOISE_RAD_S`.
+
+    The kernel's regressor is the samples' own second difference
+    (:func:`.propagation.propagate_block`), whose noise the attitude shares: errors in
+    variables that pull the kernel towards +12 as that noise grows against the rate's
+    curvature. Session 24, interval means at 100-200 Hz, the kernel a state for every unit:
+    consumer MEMS +9.1..+11.6 (sigmas 0.3-0.7; one gyro scale 4.9 sigma off with exit 0),
+    industrial MEMS +0.9..+5.9, tactical +0.3..+2.8 (sigmas 0.7-1.8), navigation units at
+    100 Hz to 2 kHz within their sigmas. 1e-4 rad/s a sample is 1e-5 rad/s/sqrt(Hz) at
+    100 Hz, 3.2e-6 at 1 kHz (navigation units: 0.6-1.5e-6, tactical 1.5-4.4e-5). A gyro
+    noisier than that hides the kernel anyway: through a ramp of 1 rad/s^2 at 100 Hz it
+    moves the attitude by 4e-6 rad, against 1e-5 rad of the noise's at the limit over the
+    ramp's second. A gyro whose noise nobody measured (no coarse start, no grade): not."""
+    if not math.isfinite(noise_rad_s_rt_hz) or noise_rad_s_rt_hz < 0:
+        return False
+    dt = period_s if period_s > 0 else 0.01
+    return noise_rad_s_rt_hz / math.sqrt(dt) <= KERNEL_GYRO_SAMPLE_NOISE_RAD_S
 
 
 def kernel_note(estimator_extra: dict[str, Any], config: EstimatorConfig) -> str | None:
-    """One line when the sampling kernels the data chose are not the declared
-    ``imu_sample_type``'s (beyond :data:`KERNEL_NOTE_SIGMAS` of their sigmas), else None:
-    what the samples are, and that the filter took them so (it estimated them)."""
+    """One line when a sampling kernel the data chose is not the declared
+    ``imu_sample_type``'s (beyond :data:`KERNEL_NOTE_SIGMAS` of its sigma), else None: what
+    the samples are, and whether the filter took them so. A kernel that was no state (a
+    noisy gyro's, an arm's accelerometers') was assumed at the declared type's: then the
+    line says to declare the type."""
     mean = sample_kernel_mean(config)
-    got = []
+    got, assumed = [], []
     for side, what in (('gyro', 'gyros'), ('accel', 'accelerometers')):
         k, sd = estimator_extra.get(f'{side}_sample_kernel'), \
             estimator_extra.get(f'{side}_sample_kernel_sigma')
         if k is None or not sd:
+            assumed.append(what)
             continue
         got.append((what, float(k), float(sd[0])))
     if not any(abs(k - mean) > KERNEL_NOTE_SIGMAS * sd for _, k, sd in got):
         return None
-    return (f'the IMU samples are not what imu_sample_type ({config.imu_sample_type}) says: '
+    line = (f'the IMU samples are not what imu_sample_type ({config.imu_sample_type}) says: '
             'the sampling kernels came out '
             + ', '.join(f'{what} {k:.2f} +- {sd:.2f}' for what, k, sd in got)
             + f' (expected {mean:g}; 0 interval means, 1 point samples'
             + (', -2 the trapezoids of declared point samples' if mean else '')
-            + ', below 0 a smoothing filter); the filter estimated them, so the calibration '
-            'holds')
+            + ', below 0 a smoothing filter)')
+    if not assumed:
+        return line + '; the filter estimated them, so the calibration holds'
+    return (line + f'; the {" and ".join(assumed)}\' kernel was not estimated here but '
+            f'assumed at {mean:g}: declare the samples\' type (--config with '
+            'imu_sample_type) and run again')
 
 
 def prior_point(fixture: Fixture, start: CoarseStart | None,

@@ -518,9 +518,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         The reference point from the axes' common point, IMU frame (a table's Jacobians
         take its acceleration about the axes, :func:`table_specific_force`); None: none.
     sample_kernel :
-        The estimates of the gyros' and the accelerometers' sampling kernels (0: interval
-        means, 1: point samples; :func:`~.error_model.sample_kernel_column`), None when they
-        are not states.
+        The gyros' and the accelerometers' sampling kernels, estimated or assumed (0: interval
+        means, 1: point samples; :func:`~.error_model.sample_kernel_column`); None: none.
     """
     m = B * n
     nom = nominal_dt_s
@@ -544,6 +543,23 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     # size effect 1 % (6 sigma) wrong (issue 11); the gyro part needs no omega_dot
     comp = BlockCompensation.of(errors) if np.isfinite(ww.sum() + ff.sum()) else None
     window = RowWindow(len(ww), h, gap)  # the nonlinear terms' argument (rectification)
+    curv: tuple[FloatArray, FloatArray, NDArray[np.bool_]] | None = None
+    if sample_kernel is not None:
+        # the samples' own curvature, 0 across a gap and at copied rows (and, for declared
+        # point samples, at the raw one after a gap among trapezoids): the navigation's
+        # correction (at s = 1 the noise through (1, 22, 1) / 24, its sum unchanged) and the
+        # gyros' regressor; the accelerometers' is the smooth one below (the navigation
+        # can't wait for it)
+        made_up = gap.copy()
+        if prev is None:
+            made_up[:h] = True
+        if ahead_repeated:
+            made_up[-h:] = True
+        if trapezoid:
+            made_up[1:] |= gap[:-1]
+        # (and the block rows that have one)
+        curv = (_curvature(w_in, made_up), _curvature(ff, made_up),
+                ~(made_up[h - 1:h + m - 1] | made_up[h:h + m]))
     if comp is not None:
         w_raw = ww
         rates = comp.rates(ww, ff, window)  # (3, m + 2 h)
@@ -565,28 +581,21 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         wd_rows = np.vstack([np.repeat(wd[:1], h, axis=0), wd_all,
                              np.repeat(wd[-1:], h - 1, axis=0)])
         w_c3, f_c3 = comp.samples(w_raw, ff, wd_rows.T, rates, window)
+        if sample_kernel is not None and curv is not None:  # every row: the chunk ends'
+            # rates take their means
+            w_c3 = w_c3 - sample_kernel[0] * em.sample_kernel_column(curv[0]).T
+            f_c3 = f_c3 - sample_kernel[1] * em.sample_kernel_column(curv[1]).T
         w_s = window(w_c3)[:, h:h + m].T  # the Jacobians' |omega| (rectification)
         w_c = np.ascontiguousarray(w_c3[:, h:h + m + 1].T)
         f_c = np.ascontiguousarray(f_c3[:, h:h + m + 1].T)
     else:
         w_c, f_c = sm.compensate(errors, w, f, wd_all)
+        if sample_kernel is not None and curv is not None:
+            w_c = w_c - sample_kernel[0] * em.sample_kernel_column(curv[0][h:h + m + 1])
+            f_c = f_c - sample_kernel[1] * em.sample_kernel_column(curv[1][h:h + m + 1])
         w_s = w_c[:m]
     if time_offset_s != 0.0:
         f_c = f_c - time_offset_s * np.vstack([fd, fd[-1:]])
-    w2 = None
-    if sample_kernel is not None:
-        # the samples' own curvature (their noise through (-1, 26, -1) / 24 at s = 1, its sum
-        # unchanged): the gyros' Jacobian below takes the same, the accelerometers' the
-        # smooth one (the navigation can't wait for it)
-        made_up = gap.copy()
-        if prev is None:
-            made_up[:h] = True
-        if ahead_repeated:
-            made_up[-h:] = True
-        w2 = _curvature(w_in, made_up)[h:h + m + 1]
-        w_c = w_c - sample_kernel[0] * em.sample_kernel_column(w2)
-        f_c = f_c - sample_kernel[1] * em.sample_kernel_column(
-            _curvature(ff, made_up)[h:h + m + 1])
     dt = dt_all[h - 1:h - 1 + m]
     if n_gaps:
         nav.reset_memory()
@@ -611,10 +620,11 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         f_turn = f_j if acc is None else table_specific_force(R_mid, out.f_enu_m_s2)
     else:
         f_j = f_c[:m]
-    f2 = None
-    if w2 is not None:  # the accelerometers' regressor's curvature, across no gap
-        w2 = w2[:m]
-        f2 = _curvature(f_j if f_turn is None else f_turn, gap[h:h + m - 1])
+    w2 = f2 = None
+    if curv is not None:  # the rows the navigation corrected, alone
+        w2 = curv[0][h:h + m]
+        f2 = _curvature(f_j if f_turn is None else f_turn, np.zeros(m - 1, bool))
+        f2[~curv[2]] = 0.0
     Mg = em.gyro_jacobian(w_s, f_j, w2)
     Ma = em.accel_jacobian(w_c[:m], wd, f_j, fd, f2)
     Dg_inv, Da_inv = em.compensation_inverses(errors, w_s, f_j)
