@@ -33,7 +33,7 @@ from msg_adapters.bag import iter_bag
 CASES = {'point read as mean': ('point', 'mean', 1.0, True),
          # point samples of a 5 ms first-order low-pass (a MEMS part's digital filter): the
          # kernel's variance tau^2, s = 1 - 12 (5 / 10)^2 = -2; before the kernels were
-         # states its accelerometer scales came out -12.4, -7.3, -7.7 sigma, exit 0
+         # states its accelerometer scales came out -13.7, -8.0, -8.6 sigma, exit 0
          'low-pass 5 ms read as mean': ('lowpass', 'mean', -2.0, True),
          'mean': ('interval_mean', 'mean', 0.0, True),
          'point declared': ('point', 'point', -2.0, True),
@@ -54,8 +54,9 @@ def test_the_kernels_are_found_and_the_scales_stay_honest(tmp_path: Path, case: 
     sd = np.sqrt(np.diag(est.covariance))
     for name in ('gyro_sample_kernel[0]', 'accel_sample_kernel[0]') if estimated else ():
         k = est.labels.index(name)
-        # the kernel the samples have, within 3 of its sigmas (0.09 and 0.16 here: the
-        # kernels are 1 apart, so a point sample is never taken for a mean)
+        # the kernel the samples have, within 3 of its sigmas (0.16 for the gyros, 0.09 for
+        # the accelerometers here: the kernels are 1 apart, so a point sample is never taken
+        # for a mean)
         assert abs(est.values[k] - kernel) < 3.0 * sd[k], (name, est.values[k], sd[k])
         assert sd[k] < 0.3, (name, sd[k])
     out = tmp_path / 'calib.yaml'
@@ -132,8 +133,9 @@ def test_the_note_asks_for_the_type_where_a_kernel_was_assumed() -> None:
 
 def test_the_world_s_low_pass_is_the_closed_form() -> None:
     """The world's first-order filter (testing.world_sim._Lowpass) on a sinusoid against
-    ``H = 1 / (1 + i omega tau)``, once settled: off by ``(h omega)^2 / 12`` of the signal
-    for its sub-steps ``h`` (1.1e-6 here), its state carried across blocks."""
+    ``H = 1 / (1 + i omega tau)``: off by ``(h omega)^2 / 12`` of the signal for its
+    sub-steps ``h`` (7.5e-7 here), its state carried across blocks, settled from the start
+    on a constant input; and its samples' noise at low frequency the unit's density."""
     from imu_calib_ros.testing.world_sim import LOWPASS_SUBSTEPS, _Lowpass
 
     class Quiet:
@@ -153,3 +155,140 @@ def test_the_world_s_low_pass_is_the_closed_form() -> None:
     tol = (h * w) ** 2 / 12.0 * 1.5
     np.testing.assert_allclose(y[1000:, :3], exact[1000:, None] * np.ones(3), atol=tol)
     np.testing.assert_allclose(y[1000:, 3:], 2.0 * exact[1000:, None] * np.ones(3), atol=2 * tol)
+
+    def still(t: np.ndarray):  # settled on a constant: no step at the start
+        c = np.ones((len(t), 3))
+        return c, 9.8 * c, None, None
+
+    y0 = _Lowpass(tau, dt, Quiet(), np.random.default_rng(0))(still, 0, 50)
+    np.testing.assert_allclose(y0, np.repeat([[1.0] * 3 + [9.8] * 3], 50, axis=0), rtol=1e-12)
+
+    class Noisy:
+        gyro_noise_rad_s_rt_hz = accel_noise_m_s2_rt_hz = 1.0
+
+    def zero(t: np.ndarray):
+        return np.zeros((len(t), 3)), np.zeros((len(t), 3)), None, None
+
+    for tau in (2e-3, 10e-3):  # a 2 ms filter at 100 Hz aliases 1.5x the density uncorrected
+        lp = _Lowpass(tau, dt, Noisy(), np.random.default_rng(1))
+        y = np.vstack([lp(zero, k0, k0 + 4000) for k0 in range(0, 160000, 4000)])
+        M = 100  # the variance of 1 s means is N^2 / 1 s; 6 x 1600 of them: 1.8 % (1 sigma)
+        n_est = math.sqrt(y.reshape(-1, M, 6).mean(axis=1).var(axis=0).mean() * M * dt)
+        assert abs(n_est - 1.0) < 0.06, (tau, n_est)
+
+
+def test_the_note_names_a_smoothing_filter_where_a_kernel_was_assumed() -> None:
+    """A kernel below 0 (a sensor's own filter) with the other one assumed: no type to
+    declare covers it (declaring point samples would stack the trapezoid's -2 on it)."""
+    cfg = load_estimator_config(None)
+    note = kernel_note({'gyro_sample_kernel': 0.0,
+                        'accel_sample_kernel': -5.24, 'accel_sample_kernel_sigma': [0.91]}, cfg)
+    assert note is not None and 'smoothing filter' in note and 'imu_sample_type: point' \
+        not in note
+
+
+def test_the_report_draws_no_truth_for_the_kernels() -> None:
+    """The kernels are not CONTRACT 4 parameters: no truth line (a point-sample bag's is 1)."""
+    from imu_calib_ros.core.sensor_model import SensorErrors
+    from imu_calib_ros.report.builder import _truth_by_label
+
+    class Truth:
+        def tracked_truth(self) -> SensorErrors:
+            return SensorErrors.from_vector(np.arange(45.0))
+
+    got = _truth_by_label(Truth(), ['gyro_bias[0]', 'gyro_sample_kernel[0]',
+                                    'accel_sample_kernel[0]', 'time_offset[0]',
+                                    'lever_arm[0]', 'joint_offset[0]'])
+    assert set(got) == {'gyro_bias[0]'}
+
+
+def test_the_kernel_correction_and_columns_row_by_row(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``propagate_block`` against a row-by-row expectation, at 100 Hz (one row of history
+    and look-ahead) and 1 kHz (five): every row the navigation takes, and every row the
+    chunk ends' rates take, is the sample plus ``s (x[r+1] - 2 x[r] + x[r-1]) / 24``, except
+    where that stencil touches a gap, a copied row or (declared point samples) the raw sample
+    after a gap; the kernels' Jacobian columns are 0 on exactly those rows."""
+    from imu_calib_ros.core.earth import Site
+    from imu_calib_ros.core.estimator import error_model as em
+    from imu_calib_ros.core.estimator import propagation as pr
+    from imu_calib_ros.core.sensor_model import SensorErrors
+    from imu_calib_ros.core.strapdown import Strapdown
+
+    cap: dict[str, np.ndarray] = {}
+    inst, acc, gyr = pr._instant_rates, em.accel_jacobian, em.gyro_jacobian
+
+    def rates(w_c, w_rows, *a):  # type: ignore[no-untyped-def]
+        cap['w_rows'] = w_rows.copy()
+        return inst(w_c, w_rows, *a)
+
+    def accel_cols(*a):  # type: ignore[no-untyped-def]
+        cap['f2'] = a[4].copy()
+        return acc(*a)
+
+    def gyro_cols(*a):  # type: ignore[no-untyped-def]
+        cap['w2'] = a[2].copy()
+        return gyr(*a)
+
+    monkeypatch.setattr(pr, '_instant_rates', rates)
+    monkeypatch.setattr(em, 'accel_jacobian', accel_cols)
+    monkeypatch.setattr(em, 'gyro_jacobian', gyro_cols)
+
+    class Recorded(Strapdown):
+        def propagate(self, dt, w, f):  # type: ignore[no-untyped-def]
+            cap['w_c'], cap['f_c'] = np.array(w), np.array(f)
+            return super().propagate(dt, w, f)
+
+    site = Site(45.0, 0.0)
+    lay = em.StateLayout.build(('gyro_bias', 'accel_bias', 'gyro_sample_kernel',
+                                'accel_sample_kernel'))
+    errors = SensorErrors.from_vector(np.zeros(45))
+    rng = np.random.default_rng(0)
+    sg, sa = 0.7, -1.3
+    for rate in (100.0, 1000.0):
+        dt = 1.0 / rate
+        h, n, B = pr.omega_dot_half_span(dt), 10, 3
+        m, N = B * n, B * n + 2 * pr.omega_dot_half_span(dt)
+        for prev_none, ahead, trap in np.ndindex(2, 2, 2):
+            for gaps in ((), (h + 7,), (h + 3, h + 12), (h - 1,), (h + m - 1,)):
+                if prev_none and h - 1 in gaps:
+                    continue
+                step = int(dt * 1e9)
+                t = np.arange(N, dtype=np.int64) * step + 10 ** 9
+                for g in gaps:  # the interval after row g is a gap
+                    t[g + 1:] += 3 * step
+                x = rng.normal(size=(N, 6)) * 0.1 + [0, 0, 0.5, 0, 0, 9.8]
+                if prev_none:
+                    x[:h] = x[h]
+                    t[:h] = t[h] - step * np.arange(h, 0, -1)
+                if ahead:
+                    x[h + m:] = x[h + m - 1]
+                gap = np.zeros(N - 1, bool)
+                gap[list(gaps)] = True
+                real = np.ones(N, bool)
+                real[:h] = not prev_none
+                if ahead:
+                    real[h + m:] = False
+                raw = np.zeros(N, bool)  # the raw point sample after a gap, among trapezoids
+                if trap:
+                    raw[1:][gap] = True
+                want = x.copy()
+                for r in range(1, N - 1):
+                    if real[r - 1:r + 2].all() and not (gap[r - 1] or gap[r]) \
+                            and not raw[r - 1:r + 2].any():
+                        d2 = x[r + 1] - 2 * x[r] + x[r - 1]
+                        want[r] += np.r_[sg * d2[:3], sa * d2[3:]] / 24
+                prev = None if prev_none else (t[:h], x[:h, :3], x[:h, 3:])
+                pr.propagate_block(Recorded(site, np.eye(3)), errors, 0.0, prev, t[h:],
+                                   x[h:, :3], x[h:, 3:], dt, B, n, lay, site.omega_ie_enu,
+                                   table=True, ahead_repeated=bool(ahead), trapezoid=bool(trap),
+                                   sample_kernel=(sg, sa))
+                case = (rate, prev_none, ahead, trap, gaps)
+                np.testing.assert_allclose(cap['w_c'], want[h:h + m, :3], atol=1e-12,
+                                           err_msg=str(case))
+                np.testing.assert_allclose(cap['f_c'], want[h:h + m, 3:], atol=1e-12,
+                                           err_msg=str(case))
+                np.testing.assert_allclose(cap['w_rows'].T[1:-1], want[1:-1, :3], atol=1e-12,
+                                           err_msg=str(case))
+                corrected = np.abs(want[h:h + m] - x[h:h + m]).max(axis=1) > 0
+                assert np.array_equal(np.abs(cap['w2']).max(axis=1) > 0, corrected), case
+                assert not np.any((np.abs(cap['f2']).max(axis=1) > 0) & ~corrected), case

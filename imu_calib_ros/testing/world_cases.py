@@ -159,6 +159,8 @@ def make_case(tmp_path: str | os.PathLike[str], unit: str = 'nav', size: float =
     fx_path = _fixture_path(fixture).resolve()
     name = (f'{unit}-s{size:g}-m{mount_deg:g}-o{offset_mm:g}-l{latency_ms:g}-{sample_type}'
             f'-j{joint_rate_hz:g}-i{imu_rate_hz:g}-{Path(str(plan)).stem}-{fx_path.stem}-{seed}')
+    if config:  # other world options (a low-pass filter's tau, drops...): in the name too
+        name += '-' + hashlib.sha256(repr(sorted(config.items())).encode()).hexdigest()[:8]
     if unit_noise:
         name += '-' + hashlib.sha256(repr(sorted(unit_noise.items())).encode()).hexdigest()[:8]
     out = Path(tmp_path) / name

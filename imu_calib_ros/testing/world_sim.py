@@ -498,7 +498,8 @@ def _bias_drift(rng: np.random.Generator, n: int, dt: float, sigma: float, tau: 
 
 class _Lowpass:
     """Point samples of a first-order low-pass filter, ``tau y' = x - y``, of the sensors'
-    output ``x`` (with its white noise, density kept), state carried across blocks; the
+    output ``x`` (with its white noise, the samples' density at low frequency kept at the
+    unit's: aliasing compensated), state carried across blocks; the
     filter starts settled on the first input. Exact for ``x`` linear across each of
     :data:`LOWPASS_SUBSTEPS` sub-steps a period (off by ``(h omega)^2 / 12`` of the signal
     for a sub-step ``h``: 8e-8 at 2 rad/s and 100 Hz; 7.5e-7 measured on a sinusoid at
@@ -514,8 +515,15 @@ class _Lowpass:
         b0 = tau_s * (1.0 - a) / h - a  # weight of the sub-step's start, then its end
         b1 = 1.0 - tau_s * (1.0 - a) / h
         self.b, self.a = np.array([b1, b0]), np.array([1.0, -a])
+        # the samples' noise density at low frequency is N (the truth's): point samples of
+        # filtered noise fold its high frequencies down, sum_m R(m) = sd^2 sum_r G_r^2 with
+        # G_r the impulse response summed over every sub-step r (mod the period), so the
+        # sub-steps' noise is N / sqrt(dt sum_r G_r^2) (N / sqrt(h) without aliasing)
+        sub = LOWPASS_SUBSTEPS
+        tail = (b0 + a * b1) * a ** np.arange(sub) / (1.0 - a ** sub)  # i = r + j sub, r >= 1
+        g_r = np.concatenate([[b1 + tail[-1]], tail[:-1]])
         self.sd = np.repeat([noise.gyro_noise_rad_s_rt_hz, noise.accel_noise_m_s2_rt_hz],
-                            3) / math.sqrt(h)
+                            3) / math.sqrt(dt * float(np.sum(g_r ** 2)))
         self.rng = rng
         self.zi: FloatArray | None = None  # lfilter's state, carried across blocks
 
@@ -733,7 +741,8 @@ def _truth(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting, cfg: 
         },
         'reference_point': {'xyz_joint_m': fl(xyz_true),
                             'xyz_imu_m': fl(R_true.inv().apply(xyz_true))},
-        'time': {'sample_type': cfg.sample_type, 'imu_rate_hz': float(cfg.imu_rate_hz),
+        'time': {'sample_type': cfg.sample_type, 'lowpass_tau_s': float(cfg.lowpass_tau_s),
+                 'imu_rate_hz': float(cfg.imu_rate_hz),
                  'joint_rate_hz': float(cfg.joint_rate_hz),
                  'joint_latency_s': float(cfg.joint_latency_s),
                  'joint_stamp_is': 'true time + joint_latency_s',

@@ -181,9 +181,15 @@ def kernel_note(estimator_extra: dict[str, Any], config: EstimatorConfig) -> str
             + ', below 0 a smoothing filter)')
     if not assumed:
         return line + '; the filter estimated them, so the calibration holds'
-    return (line + f'; the {" and ".join(assumed)}\' kernel was not estimated here but '
-            f'assumed at {mean:g}: declare the samples\' type (--config with '
-            'imu_sample_type) and run again')
+    line += (f'; the {" and ".join(assumed)}\' kernel was not estimated here but assumed at '
+             f'{mean:g}')
+    if all(abs(k - 1.0) <= KERNEL_NOTE_SIGMAS * sd for _, k, sd in got):  # point samples
+        return line + (": declare the samples' type (--config with imu_sample_type: point) "
+                       'and run again')
+    # a smoothing filter's kernel (or another): no type to declare covers it
+    return line + (', and is likely as far off (a smoothing filter in the sensor?), which no '
+                   "imu_sample_type covers: record the sensor's interval means, or with its "
+                   'filter at a wider bandwidth')
 
 
 def prior_point(fixture: Fixture, start: CoarseStart | None,
