@@ -557,9 +557,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
             made_up[-h:] = True
         if trapezoid:
             made_up[1:] |= gap[:-1]
-        # (and the block rows that have one)
         curv = (_curvature(w_in, made_up), _curvature(ff, made_up),
-                ~(made_up[h - 1:h + m - 1] | made_up[h:h + m]))
+                ~(made_up[h - 1:h + m - 1] | made_up[h:h + m]))  # block rows that have one
     if comp is not None:
         w_raw = ww
         rates = comp.rates(ww, ff, window)  # (3, m + 2 h)
@@ -615,8 +614,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         # (a tactical gyro's 0.02 rad/s^2 x 18 cm, 4e-3 m/s^2 a sample, as much as gravity's
         # curvature at 2 rad/s), errors in variables that took the kernel to -30 +- 0.6 under
         # Kozlov's oscillations 18 cm off the axes (truth 0; without it -0.06 +- 1.99: a
-        # heading oscillation turns no gravity, and the arm's own curvature, left out, is
-        # ~1e-4 m/s^2 a sample there)
+        # heading oscillation turns no gravity, and the reference point's own curvature, left
+        # out, is ~1e-4 m/s^2 a sample there)
         f_turn = f_j if acc is None else table_specific_force(R_mid, out.f_enu_m_s2)
     else:
         f_j = f_c[:m]
