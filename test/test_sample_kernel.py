@@ -156,6 +156,14 @@ def test_the_world_s_low_pass_is_the_closed_form() -> None:
     np.testing.assert_allclose(y[1000:, :3], exact[1000:, None] * np.ones(3), atol=tol)
     np.testing.assert_allclose(y[1000:, 3:], 2.0 * exact[1000:, None] * np.ones(3), atol=2 * tol)
 
+    # the accelerometers' own filter (another delay than the gyros')
+    lp2 = _Lowpass(tau, dt, Quiet(), np.random.default_rng(0), tau_accel_s=2e-3)
+    y2 = np.vstack([lp2(inst, k0, k0 + 500) for k0 in range(0, 3000, 500)])
+    exact2 = np.imag(np.exp(1j * w * t) / (1.0 + 1j * w * 2e-3))
+    np.testing.assert_allclose(y2[1000:, :3], y[1000:, :3], rtol=0, atol=0)
+    np.testing.assert_allclose(y2[1000:, 3:], 2.0 * exact2[1000:, None] * np.ones(3),
+                               atol=2 * tol)
+
     def still(t: np.ndarray):  # settled on a constant: no step at the start
         c = np.ones((len(t), 3))
         return c, 9.8 * c, None, None

@@ -304,7 +304,8 @@ class WorldConfig:
     ``base_tilt_rad``: the table's base not levelled, a rotation about ENU east and north
     [rad] of the first joint's parent frame (the fixture file says it is ENU).
     ``sample_type`` ``'lowpass'``: point samples of the sensors' output through a first-order
-    low-pass filter of time constant ``lowpass_tau_s`` (a MEMS part's digital filter), the
+    low-pass filter of time constant ``lowpass_tau_s`` (a MEMS part's digital filter;
+    ``lowpass_tau_accel_s`` > 0: the accelerometers' own, another delay than the gyros'), the
     white noise filtered with it (its density kept at low frequencies); bias drifts and
     quantisation after the filter.
     """
@@ -317,6 +318,7 @@ class WorldConfig:
     encoder_zero_rad: tuple[float, ...] = ()
     base_tilt_rad: tuple[float, float] = (0.0, 0.0)
     lowpass_tau_s: float = 0.0
+    lowpass_tau_accel_s: float = 0.0
     wrap_joints: bool = False
     joint_velocities: bool = True
     joint_order: str = 'fixture'
@@ -505,16 +507,27 @@ class _Lowpass:
     for a sub-step ``h``: 8e-8 at 2 rad/s and 100 Hz; 7.5e-7 measured on a sinusoid at
     6 rad/s against the closed form)."""
 
-    def __init__(self, tau_s: float, dt: float, noise: Any, rng: np.random.Generator
-                 ) -> None:
+    def __init__(self, tau_s: float, dt: float, noise: Any, rng: np.random.Generator,
+                 tau_accel_s: float = 0.0) -> None:
         from scipy.signal import lfilter
         self._lfilter = lfilter
         h = dt / LOWPASS_SUBSTEPS
         self.h, self.dt = h, dt
+        # (b, a, noise sd of the sub-steps) of the gyros' filter, then the accelerometers'
+        # (``tau_accel_s`` 0: the gyros' tau; another: a relative delay between the sensors)
+        self.filters = [self._coefficients(t, dt, h, nd) for t, nd in (
+            (tau_s, noise.gyro_noise_rad_s_rt_hz),
+            (tau_accel_s or tau_s, noise.accel_noise_m_s2_rt_hz))]
+        self.sd = np.repeat([f[2] for f in self.filters], 3)
+        self.rng = rng
+        self.zi: list[FloatArray] | None = None  # lfilter's states, carried across blocks
+
+    @staticmethod
+    def _coefficients(tau_s: float, dt: float, h: float, density: float
+                      ) -> tuple[FloatArray, FloatArray, float]:
         a = math.exp(-h / tau_s)
         b0 = tau_s * (1.0 - a) / h - a  # weight of the sub-step's start, then its end
         b1 = 1.0 - tau_s * (1.0 - a) / h
-        self.b, self.a = np.array([b1, b0]), np.array([1.0, -a])
         # the samples' noise density at low frequency is N (the truth's): point samples of
         # filtered noise fold its high frequencies down, sum_m R(m) = sd^2 sum_r G_r^2 with
         # G_r the impulse response summed over every sub-step r (mod the period), so the
@@ -522,10 +535,8 @@ class _Lowpass:
         sub = LOWPASS_SUBSTEPS
         tail = (b0 + a * b1) * a ** np.arange(sub) / (1.0 - a ** sub)  # i = r + j sub, r >= 1
         g_r = np.concatenate([[b1 + tail[-1]], tail[:-1]])
-        self.sd = np.repeat([noise.gyro_noise_rad_s_rt_hz, noise.accel_noise_m_s2_rt_hz],
-                            3) / math.sqrt(dt * float(np.sum(g_r ** 2)))
-        self.rng = rng
-        self.zi: FloatArray | None = None  # lfilter's state, carried across blocks
+        return (np.array([b1, b0]), np.array([1.0, -a]),
+                density / math.sqrt(dt * float(np.sum(g_r ** 2))))
 
     def __call__(self, inst: Any, k0: int, k1: int) -> FloatArray:
         """Samples ``k0 + 1 .. k1`` (instants ``k dt``) of the output, ``(k1 - k0, 6)``."""
@@ -536,11 +547,16 @@ class _Lowpass:
         if self.zi is None:  # settled on the first input: y = x0, no step
             g0, a0, _, _ = inst(np.array([k0 * self.dt]))
             x0 = np.concatenate([g0, a0], axis=1)[0]
-            self.zi = (1.0 - self.b[0]) * x0  # b0 x0 + a y0 with y0 = x0 (a + b0 + b1 = 1)
-        # y[n] = a y[n-1] + b1 x[n] + b0 x[n-1] over the sub-steps
-        y, zf = self._lfilter(self.b, self.a, x, axis=0, zi=self.zi[None, :])
-        self.zi = zf[0]
-        return np.asarray(y[sub - 1::sub])
+            # b0 x0 + a y0 with y0 = x0 (a + b0 + b1 = 1)
+            self.zi = [(1.0 - b[0]) * x0[3 * i:3 * i + 3]
+                       for i, (b, _, _) in enumerate(self.filters)]
+        out = np.empty((len(t), 6))
+        for i, (b, a, _) in enumerate(self.filters):
+            # y[n] = a y[n-1] + b1 x[n] + b0 x[n-1] over the sub-steps
+            out[:, 3 * i:3 * i + 3], zf = self._lfilter(b, a, x[:, 3 * i:3 * i + 3], axis=0,
+                                                         zi=self.zi[i][None, :])
+            self.zi[i] = zf[0]
+        return np.asarray(out[sub - 1::sub])
 
 
 def _quantize(x: FloatArray, dt: float, kind: str, quantum: float, point: bool) -> FloatArray:
@@ -631,7 +647,7 @@ def generate(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting,
     nodes, weights = np.polynomial.legendre.leggauss(cfg.gl_nodes)
     bps = np.asarray(profile.breakpoints_s, dtype=float)
     nz = unit.noise if cfg.noise else UnitNoise()
-    lowpass = _Lowpass(cfg.lowpass_tau_s, dt, nz, rng_noise) \
+    lowpass = _Lowpass(cfg.lowpass_tau_s, dt, nz, rng_noise, cfg.lowpass_tau_accel_s) \
         if cfg.sample_type == 'lowpass' else None
     for k0 in range(0, n, cfg.block):
         k1 = min(n, k0 + cfg.block)
@@ -742,6 +758,7 @@ def _truth(fx: WorldFixture, profile: Any, unit: Unit, mounting: Mounting, cfg: 
         'reference_point': {'xyz_joint_m': fl(xyz_true),
                             'xyz_imu_m': fl(R_true.inv().apply(xyz_true))},
         'time': {'sample_type': cfg.sample_type, 'lowpass_tau_s': float(cfg.lowpass_tau_s),
+                 'lowpass_tau_accel_s': float(cfg.lowpass_tau_accel_s or cfg.lowpass_tau_s),
                  'imu_rate_hz': float(cfg.imu_rate_hz),
                  'joint_rate_hz': float(cfg.joint_rate_hz),
                  'joint_latency_s': float(cfg.joint_latency_s),
