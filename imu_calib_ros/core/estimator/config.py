@@ -18,6 +18,11 @@ __all__ = ['EstimatorConfig', 'load_estimator_config']
 
 
 
+#: groups switched by another setting than ``estimate_<group>`` (one switch for both kernels)
+_SWITCH = {'gyro_sample_kernel': 'estimate_sample_kernel',
+           'accel_sample_kernel': 'estimate_sample_kernel'}
+
+
 @dataclass(frozen=True)
 class EstimatorConfig:
     """Configuration of :class:`~imu_calib_ros.core.estimator.CalibrationEstimator`.
@@ -142,9 +147,7 @@ class EstimatorConfig:
     def estimated_groups(self) -> tuple[str, ...]:
         """The sensor-error and auxiliary groups switched on, in state order."""
         names = (g.name for g in registry.GROUPS if g.name != 'mounting')  # state order
-        out = [n for n in names
-               if getattr(self, f'estimate_{n.removeprefix("gyro_").removeprefix("accel_")}'
-                          if n.endswith('sample_kernel') else f'estimate_{n}')]
+        out = [n for n in names if getattr(self, _SWITCH.get(n, f'estimate_{n}'))]
         if self.attitude_aiding:
             out.append('mounting')
         return tuple(out)

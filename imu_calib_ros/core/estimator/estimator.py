@@ -994,12 +994,7 @@ class CalibrationEstimator:
             st is not None and cfg.aiding_gyro_noise_rad_s_rt_hz > 0
             and st.gyro_noise_rad_s_rt_hz > cfg.aiding_gyro_noise_rad_s_rt_hz)
         self.attitude_aiding = bool(aiding)
-        self._prior = prior_sigmas(self.grade, cfg, st)
-        if not self.fixture.concurrent:
-            # an arm's Jacobians take the samples as their specific force, and the kernel's
-            # regressor would be their second difference: errors in variables, as for noisy
-            # gyros (priors.gyro_kernel_estimable); the declared type's is assumed
-            self._prior['accel_sample_kernel'] = np.zeros(1)
+        self._prior = prior_sigmas(self.grade, cfg, st, self.fixture.concurrent)
         groups = cfg.estimated_groups
         if self.attitude_aiding and 'mounting' not in groups:
             groups = groups + ('mounting',)

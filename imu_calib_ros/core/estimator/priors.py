@@ -51,13 +51,17 @@ COARSE_FLOOR: dict[str, float] = {g.name: g.coarse_floor for g in registry.SENSO
 
 
 def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
-                 start: CoarseStart | None = None) -> dict[str, FloatArray]:
+                 start: CoarseStart | None = None, table: bool = True
+                 ) -> dict[str, FloatArray]:
     """One-sigma prior of every group in SI.
 
     Without a coarse start: the grade's sigmas x ``prior_sigma_scale`` (the old behaviour,
     ``auto_start: false``). With one (issue 11): ``prior_inflation`` x the coarse sigma, never
     below :data:`COARSE_FLOOR` nor the grade hint; values the data did not determine get the
-    grade hint's sigma if one was given, else :data:`RAW_PRIOR`.
+    grade hint's sigma if one was given, else :data:`RAW_PRIOR`. A group with sigma 0 is no
+    state (the caller drops it): the sampling kernels where their regressors would carry the
+    noise that drives the innovations (:func:`gyro_kernel_estimable`; the accelerometers'
+    off a ``table``, on a general chain).
     """
     k = config.prior_sigma_scale
     hint: dict[str, FloatArray] = {}
@@ -95,7 +99,10 @@ def prior_sigmas(grade: ImuGrade | None, config: EstimatorConfig,
     else:
         kernel = grade is not None and gyro_kernel_estimable(grade.gyro_noise_rad_s_rt_hz, 0.0)
     res['gyro_sample_kernel'] = np.full(1, config.sample_kernel_sigma if kernel else 0.0)
-    res['accel_sample_kernel'] = np.full(1, config.sample_kernel_sigma)
+    # on a general chain (``table`` False) the arm's Jacobians take the samples as their
+    # specific force, and the accelerometers' kernel regressor would be their second
+    # difference: errors in variables, as for noisy gyros; the declared type's is assumed
+    res['accel_sample_kernel'] = np.full(1, config.sample_kernel_sigma if table else 0.0)
     res['lever_arm'] = np.full(3, config.lever_arm_sigma_m)
     mount = config.mounting_sigma_rad
     if start is not None:

@@ -513,7 +513,8 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         The look-ahead rows repeat the last sample (no data after it yet): like the history
         rows copied at the first block after an alignment, not a corner of the motion.
     trapezoid :
-        The samples are trapezoid means of declared point samples (:func:`corner_variance`).
+        The samples are trapezoid means of declared point samples (:func:`corner_variance`;
+        the raw sample after a gap has no curvature for the kernels).
     lever_arm_imu_m :
         The reference point from the axes' common point, IMU frame (a table's Jacobians
         take its acceleration about the axes, :func:`table_specific_force`); None: none.
@@ -543,7 +544,9 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     # size effect 1 % (6 sigma) wrong (issue 11); the gyro part needs no omega_dot
     comp = BlockCompensation.of(errors) if np.isfinite(ww.sum() + ff.sum()) else None
     window = RowWindow(len(ww), h, gap)  # the nonlinear terms' argument (rectification)
-    curv: tuple[FloatArray, FloatArray, NDArray[np.bool_]] | None = None
+    # the kernels' corrections of every row (gyros, accelerometers), the gyros' curvature
+    # (their regressor) and the block rows that have one
+    kern: tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]] | None = None
     if sample_kernel is not None:
         # the samples' own curvature, 0 across a gap and at copied rows (and, for declared
         # point samples, at the raw one after a gap among trapezoids): the navigation's
@@ -557,8 +560,10 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
             made_up[-h:] = True
         if trapezoid:
             made_up[1:] |= gap[:-1]
-        curv = (_curvature(w_in, made_up), _curvature(ff, made_up),
-                ~(made_up[h - 1:h + m - 1] | made_up[h:h + m]))  # block rows that have one
+        d2w = _curvature(w_in, made_up)
+        kern = (sample_kernel[0] * em.sample_kernel_column(d2w),
+                sample_kernel[1] * em.sample_kernel_column(_curvature(ff, made_up)), d2w,
+                ~(made_up[h - 1:h + m - 1] | made_up[h:h + m]))
     if comp is not None:
         w_raw = ww
         rates = comp.rates(ww, ff, window)  # (3, m + 2 h)
@@ -580,18 +585,15 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
         wd_rows = np.vstack([np.repeat(wd[:1], h, axis=0), wd_all,
                              np.repeat(wd[-1:], h - 1, axis=0)])
         w_c3, f_c3 = comp.samples(w_raw, ff, wd_rows.T, rates, window)
-        if sample_kernel is not None and curv is not None:  # every row: the chunk ends'
-            # rates take their means
-            w_c3 = w_c3 - sample_kernel[0] * em.sample_kernel_column(curv[0]).T
-            f_c3 = f_c3 - sample_kernel[1] * em.sample_kernel_column(curv[1]).T
+        if kern is not None:  # every row: the chunk ends' rates take their means
+            w_c3, f_c3 = w_c3 - kern[0].T, f_c3 - kern[1].T
         w_s = window(w_c3)[:, h:h + m].T  # the Jacobians' |omega| (rectification)
         w_c = np.ascontiguousarray(w_c3[:, h:h + m + 1].T)
         f_c = np.ascontiguousarray(f_c3[:, h:h + m + 1].T)
     else:
         w_c, f_c = sm.compensate(errors, w, f, wd_all)
-        if sample_kernel is not None and curv is not None:
-            w_c = w_c - sample_kernel[0] * em.sample_kernel_column(curv[0][h:h + m + 1])
-            f_c = f_c - sample_kernel[1] * em.sample_kernel_column(curv[1][h:h + m + 1])
+        if kern is not None:
+            w_c, f_c = w_c - kern[0][h:h + m + 1], f_c - kern[1][h:h + m + 1]
         w_s = w_c[:m]
     if time_offset_s != 0.0:
         f_c = f_c - time_offset_s * np.vstack([fd, fd[-1:]])
@@ -620,10 +622,10 @@ def propagate_block(nav: Strapdown, errors: Any, time_offset_s: float,
     else:
         f_j = f_c[:m]
     w2 = f2 = None
-    if curv is not None:  # the rows the navigation corrected, alone
-        w2 = curv[0][h:h + m]
+    if kern is not None:  # the rows the navigation corrected, alone
+        w2 = kern[2][h:h + m]
         f2 = _curvature(f_j if f_turn is None else f_turn, np.zeros(m - 1, bool))
-        f2[~curv[2]] = 0.0
+        f2[~kern[3]] = 0.0
     Mg = em.gyro_jacobian(w_s, f_j, w2)
     Ma = em.accel_jacobian(w_c[:m], wd, f_j, fd, f2)
     Dg_inv, Da_inv = em.compensation_inverses(errors, w_s, f_j)
